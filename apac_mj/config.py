@@ -1,0 +1,117 @@
+"""Configuration as dataclasses; every field carries its doc and the paper's value.
+
+Defaults are the paper's (Appendix 2, Tables 1 and 2). Where the paper leaves a
+choice open, the field says so and ``docs/paper-mapping.md`` lists it.
+"""
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+AGENTS = ("ddpg", "spac", "apac")
+
+
+@dataclasses.dataclass
+class AgentConfig:
+    """The agent: habit system (DDPG), planning system, arbitrator, integrator."""
+
+    #: Which controller acts: "ddpg" (always the actor), "spac" (always the
+    #: inverse model) or "apac" (the arbitrator decides).
+    agent: str = "apac"
+
+    # -- networks (Table 2) --------------------------------------------------
+    #: Actor hidden layers (relu); output 2 x tanh x action_scale.
+    actor_hidden: tuple[int, int] = (400, 300)
+    #: Critic: state -> 400 relu; [300 from layer 1, 300 from the action] -> 600 relu -> 1.
+    critic_hidden: tuple[int, int] = (400, 600)
+    #: Forward model hidden layers (sigmoid); output 4 x sigmoid x plane_scale.
+    forward_hidden: tuple[int, int] = (400, 300)
+    #: Inverse model hidden layers (relu); output 2 x tanh x action_scale.
+    inverse_hidden: tuple[int, int] = (400, 300)
+    #: Scale of the actor's and the inverse model's tanh outputs (degrees).
+    action_scale: float = 180.0
+    #: Scale of the forward model's sigmoid output (cm, the plane's size).
+    plane_scale: float = 30.0
+
+    # -- optimisation (Table 2; Adam everywhere) -----------------------------
+    actor_lr: float = 1e-4
+    critic_lr: float = 1e-3
+    #: Table 2 gives 0.01; the text's 0.1 is the outlier.
+    forward_lr: float = 1e-2
+    inverse_lr: float = 1e-2
+    #: L2 regularization on all networks ("weight decay 0.001"), added to the gradient as in torch.optim.Adam.
+    weight_decay: float = 1e-3
+    gamma: float = 0.99
+    tau: float = 1e-3
+    replay_size: int = 1000
+    batch_size: int = 500
+    #: Gradient updates per environment step (paper: one).
+    updates_per_step: int = 1
+
+    # -- exploration: Ornstein-Uhlenbeck noise on both proposals ---------------
+    ou_theta: float = 0.15
+    #: OU sigma in degrees (the paper gives no value).
+    ou_sigma: float = 2.0
+
+    # -- arbitration (section "Arbitration") ---------------------------------
+    #: APAC uses the inverse model only during this many first episodes.
+    planning_episodes: int = 100
+    #: After that, the actor acts on the first steps of every episode.
+    habit_first_steps: int = 2
+    #: Then the actor acts if |delta| of the last transition is below this.
+    delta_threshold: float = 1.0
+
+    # -- motor babbling -------------------------------------------------------
+    #: Episodes of random actions before learning (the paper gives no number).
+    babbling_episodes: int = 10
+    #: Random babbling actions are uniform in [-babbling_scale, babbling_scale] degrees.
+    babbling_scale: float = 180.0
+
+    # -- inputs ---------------------------------------------------------------
+    #: Networks see raw cm and degrees as in the paper when False.
+    normalize_inputs: bool = False
+
+    def __post_init__(self) -> None:
+        if self.agent not in AGENTS:
+            raise ValueError(f"agent must be one of {AGENTS}, got {self.agent!r}")
+        for name in ("actor_lr", "critic_lr", "forward_lr", "inverse_lr", "tau", "gamma"):
+            v = getattr(self, name)
+            if not (0 < v <= 1):
+                raise ValueError(f"{name} must be in (0, 1], got {v}")
+        if self.batch_size < 1 or self.replay_size < 1:
+            raise ValueError("batch_size and replay_size must be >= 1")
+
+
+@dataclasses.dataclass
+class TrainConfig:
+    """A training run: which task, how many seeds and episodes, where outputs go."""
+
+    #: Task name (a file in tasks/).
+    task: str = "changing_target"
+    #: Independent seeds trained side by side as one ensemble.
+    seeds: tuple[int, ...] = (0,)
+    #: Training episodes per seed (after babbling).
+    episodes: int = 1000
+    #: "cpu" or "cuda".
+    device: str = "cpu"
+    #: "fp32" (reference) or "bf16" (autocast of the matrix products).
+    precision: str = "fp32"
+    #: Save a checkpoint every this many episodes (of the slowest seed).
+    checkpoint_every: int = 50
+    #: Arm actuation: "servo" (MuJoCo position servos) or "kinematic".
+    actuation: str = "servo"
+    agent: AgentConfig = dataclasses.field(default_factory=AgentConfig)
+
+
+def to_dict(cfg: Any) -> dict[str, Any]:
+    return dataclasses.asdict(cfg)
+
+
+def train_config_from_dict(d: dict[str, Any]) -> TrainConfig:
+    d = dict(d)
+    agent = AgentConfig(**_tuples(d.pop("agent", {})))
+    return TrainConfig(agent=agent, **_tuples(d))
+
+
+def _tuples(d: dict[str, Any]) -> dict[str, Any]:
+    return {k: tuple(v) if isinstance(v, list) else v for k, v in d.items()}

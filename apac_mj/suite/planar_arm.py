@@ -1,0 +1,273 @@
+"""The ``planar_arm`` domain: the paper's two-link arm as a dm_control domain.
+
+``Physics`` offers the arm's geometry in the paper's units (cm, degrees);
+``Reach`` is the target-reaching task, parameterized by a
+:class:`~apac_mj.suite.task_spec.TaskSpec` read from ``tasks/``.
+"""
+from __future__ import annotations
+
+import collections
+import math
+
+import numpy as np
+from dm_control.mujoco import engine
+from dm_control.rl import control
+from dm_control.suite import base
+from dm_env import specs
+
+from apac_mj import paths
+from apac_mj.kinematics import motion_function
+from apac_mj.suite.task_spec import TaskSpec
+
+#: Physics sub-steps per environment step. With the servo gains in the MJCF
+#: (kp = 1e4, kv = 200, 10 ms sub-steps) the slowest move (180 deg on both
+#: joints) settles to < 0.01 deg in 20 sub-steps; 40 leaves a 2x margin.
+N_SUB_STEPS = 40
+#: Joint range of both hinges, degrees.
+JOINT_RANGE = (0.0, 180.0)
+#: Bound of each action component (change of a joint angle), degrees.
+ACTION_BOUND = 180.0
+#: Joint angles at the start of every episode (shoulder, elbow), degrees.
+START_ANGLES = (0.0, 180.0)
+ACTUATIONS = ("servo", "kinematic")
+
+
+def _rad(deg):
+    return np.asarray(deg, dtype=np.float64) * (np.pi / 180.0)
+
+
+def _deg(rad):
+    return np.asarray(rad, dtype=np.float64) * (180.0 / np.pi)
+
+
+class Physics(engine.Physics):
+    """The arm's MuJoCo physics with the paper's named geometric queries."""
+
+    # Plane bounds, set by the task that owns this physics.
+    plane_size: tuple[float, float] = (30.0, 30.0)
+
+    def end_effector(self) -> np.ndarray:
+        return self.named.data.site_xpos["end_effector", :2].copy()
+
+    def elbow(self) -> np.ndarray:
+        return self.named.data.site_xpos["elbow", :2].copy()
+
+    def target(self) -> np.ndarray:
+        return self.named.model.site_pos["target", :2].copy()
+
+    def origin(self) -> np.ndarray:
+        return self.named.model.body_pos["upper_arm", :2].copy()
+
+    def distance_to_target(self) -> float:
+        return float(np.linalg.norm(self.end_effector() - self.target()))
+
+    def joint_angles(self) -> np.ndarray:
+        """(shoulder, elbow) in degrees."""
+        return _deg(self.named.data.qpos[["shoulder", "elbow"]])
+
+    def link_lengths(self) -> np.ndarray:
+        """(l1, l2) in cm: shoulder->elbow and elbow->end-effector."""
+        return np.array([self.named.model.body_pos["forearm", 0], self.named.model.site_pos["end_effector", 0]])
+
+    def set_joint_angles(self, alpha_deg: float, beta_deg: float) -> None:
+        """Place the arm at these angles, at rest, with the servos holding them."""
+        angles = np.array([alpha_deg, beta_deg], dtype=np.float64)
+        if not np.all(np.isfinite(angles)):
+            raise ValueError(f"joint angles must be finite, got {angles}")
+        lo, hi = JOINT_RANGE
+        if np.any(angles < lo) or np.any(angles > hi):
+            raise ValueError(f"joint angles {angles} outside the joint range [{lo}, {hi}] degrees")
+        q = _rad(angles)
+        self.named.data.qpos[["shoulder", "elbow"]] = q
+        self.named.data.qvel[["shoulder", "elbow"]] = 0.0
+        self.named.data.ctrl[["shoulder_servo", "elbow_servo"]] = q
+        self.forward()
+
+    def set_link_lengths(self, l1: float, l2: float) -> None:
+        """Change both link lengths in place (no recompilation)."""
+        for name, value in (("l1", l1), ("l2", l2)):
+            if not isinstance(value, (int, float, np.floating, np.integer)) or not math.isfinite(value) or value <= 0:
+                raise ValueError(f"link length {name} must be a positive finite number, got {value!r}")
+        m = self.named.model
+        m.body_pos["forearm"] = [l1, 0.0, 0.0]
+        m.geom_pos["upper_arm"] = [l1 / 2.0, 0.0, 0.0]
+        m.geom_size["upper_arm", 1] = l1 / 2.0
+        m.geom_pos["forearm"] = [l2 / 2.0, 0.0, 0.0]
+        m.geom_size["forearm", 1] = l2 / 2.0
+        m.site_pos["end_effector"] = [l2, 0.0, 0.0]
+        self.forward()
+
+    def set_target(self, xy) -> None:
+        """Move the target (and its zone) to ``xy``, which must lie on the plane."""
+        xy = np.asarray(xy, dtype=np.float64)
+        if xy.shape != (2,) or not np.all(np.isfinite(xy)):
+            raise ValueError(f"target must be a finite (x, y) pair, got {xy!r}")
+        w, h = self.plane_size
+        if not (0.0 <= xy[0] <= w and 0.0 <= xy[1] <= h):
+            raise ValueError(f"target {xy.tolist()} lies outside the {w} x {h} plane")
+        self.named.model.site_pos["target", :2] = xy
+        self.named.model.site_pos["target_zone", :2] = xy
+
+    def set_zone_radius(self, radius: float) -> None:
+        self.named.model.site_size["target_zone", 0] = radius
+
+
+class Reach(base.Task):
+    """Reach the target: reward = -distance, terminal inside the target zone.
+
+    Observations (the paper's 6-vector state plus a vision flag):
+    ``end_effector`` (2), ``elbow`` (2), ``target`` (2) in cm and ``vision``
+    (1: seen, 0: withheld). Under occluded vision everything is seen at the
+    first step only; afterwards the positions read zero and ``vision`` is 0,
+    so nothing of the true state leaks.
+    """
+
+    def __init__(self, spec: TaskSpec, actuation: str = "servo", random=None) -> None:
+        if actuation not in ACTUATIONS:
+            raise ValueError(f"actuation must be one of {ACTUATIONS}, got {actuation!r}")
+        super().__init__(random=random)
+        self.spec = spec
+        self.actuation = actuation
+        #: Index of the current episode, 0-based (-1 before the first reset).
+        self.episode = -1
+        #: Action steps taken in the current episode.
+        self.step_count = 0
+        self._lengths = np.array(spec.link_lengths, dtype=np.float64)
+        self._static_target: np.ndarray | None = None
+        self._target_override: np.ndarray | None = None
+
+    # -- run-time controls ----------------------------------------------------
+    def set_target_override(self, xy) -> None:
+        """Use ``xy`` as the target of the following episodes (None: sample again)."""
+        self._target_override = None if xy is None else np.asarray(xy, dtype=np.float64).copy()
+
+    def set_link_lengths(self, l1: float, l2: float) -> None:
+        """Lengths used from the next reset on (and kept under changing kinematics)."""
+        self._lengths = np.array([l1, l2], dtype=np.float64)
+
+    @property
+    def link_lengths(self) -> np.ndarray:
+        return self._lengths.copy()
+
+    @property
+    def growing(self) -> bool:
+        return self.spec.kinematics_mode == "changing" and self.episode >= self.spec.growth_start_episode
+
+    # -- dm_control Task API ---------------------------------------------------
+    def initialize_episode(self, physics: Physics) -> None:
+        self.episode += 1
+        self.step_count = 0
+        physics.plane_size = self.spec.plane_size
+        physics.named.model.body_pos["upper_arm", :2] = self.spec.origin
+        physics.set_zone_radius(self.spec.zone_radius)
+        if self.spec.kinematics_mode == "static":
+            self._lengths = np.array(self.spec.link_lengths, dtype=np.float64)
+        physics.set_link_lengths(*self._lengths)
+        physics.set_joint_angles(*START_ANGLES)
+        physics.set_target(self._episode_target())
+        physics.forward()
+
+    def _episode_target(self) -> np.ndarray:
+        if self._target_override is not None:
+            return self._target_override
+        if self.spec.target_mode == "static":
+            if self._static_target is None:
+                self._static_target = self.sample_target()
+            return self._static_target
+        return self.sample_target()
+
+    def sample_target(self, max_tries: int = 10_000) -> np.ndarray:
+        """A reachable target: uniform joint angles through the motion function."""
+        lo, hi = JOINT_RANGE
+        w, h = self.spec.plane_size
+        for _ in range(max_tries):
+            alpha, beta = self.random.uniform(lo, hi, size=2)
+            end, _ = motion_function(alpha, beta, *self._lengths, self.spec.origin)
+            if not (0.0 <= end[0] <= w and 0.0 <= end[1] <= h):
+                continue
+            in_test = end[1] >= self.spec.region.test_y_min
+            if self.spec.target_region == "test" and not in_test:
+                continue
+            if self.spec.target_region == "train" and in_test:
+                continue
+            return end
+        raise RuntimeError(
+            f"task {self.spec.name!r}: no reachable target in region {self.spec.target_region!r} "
+            f"within the plane after {max_tries} draws (lengths {self._lengths.tolist()})"
+        )
+
+    def action_spec(self, physics: Physics) -> specs.BoundedArray:
+        return specs.BoundedArray((2,), np.float64, -ACTION_BOUND, ACTION_BOUND, name="joint_angle_change_deg")
+
+    def before_step(self, action, physics: Physics) -> None:
+        action = validate_action(action)
+        if self.growing:
+            self._lengths = self._lengths + self.spec.growth_per_step
+            physics.set_link_lengths(*self._lengths)
+        lo, hi = JOINT_RANGE
+        setpoint = np.clip(physics.joint_angles() + np.clip(action, -ACTION_BOUND, ACTION_BOUND), lo, hi)
+        if self.actuation == "kinematic":
+            physics.set_joint_angles(*setpoint)
+        else:
+            physics.named.data.ctrl[["shoulder_servo", "elbow_servo"]] = _rad(setpoint)
+
+    def after_step(self, physics: Physics) -> None:
+        self.step_count += 1
+
+    def get_observation(self, physics: Physics) -> collections.OrderedDict:
+        seen = not (self.spec.occluded and self.step_count > 0)
+        obs = collections.OrderedDict()
+        obs["end_effector"] = physics.end_effector() if seen else np.zeros(2)
+        obs["elbow"] = physics.elbow() if seen else np.zeros(2)
+        obs["target"] = physics.target() if seen else np.zeros(2)
+        obs["vision"] = np.array([1.0 if seen else 0.0])
+        return obs
+
+    def get_reward(self, physics: Physics) -> float:
+        return -physics.distance_to_target()
+
+    def get_termination(self, physics: Physics):
+        if physics.distance_to_target() <= self.spec.zone_radius:
+            return 0.0  # terminal: the target is reached
+        if self.step_count >= self.spec.steps_per_episode:
+            return 1.0  # time limit: a truncation, discount 1
+        return None
+
+    # -- checkpointing -----------------------------------------------------------
+    def get_state(self) -> dict:
+        """Everything that evolves across episodes (for exact resume)."""
+        return {
+            "episode": self.episode,
+            "lengths": self._lengths.copy(),
+            "static_target": None if self._static_target is None else self._static_target.copy(),
+            "random": self.random.get_state(),
+        }
+
+    def set_state(self, state: dict) -> None:
+        self.episode = int(state["episode"])
+        self._lengths = np.asarray(state["lengths"], dtype=np.float64).copy()
+        st = state["static_target"]
+        self._static_target = None if st is None else np.asarray(st, dtype=np.float64).copy()
+        self.random.set_state(state["random"])
+
+
+def validate_action(action) -> np.ndarray:
+    """A finite float array of shape (2,); raises ValueError naming the problem."""
+    a = np.asarray(action, dtype=np.float64)
+    if a.shape != (2,):
+        raise ValueError(f"action must have shape (2,) (shoulder, elbow change in degrees), got shape {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"action must be finite, got {a.tolist()}")
+    return a
+
+
+def make_physics() -> Physics:
+    return Physics.from_xml_path(str(paths.arm_xml_path()))
+
+
+def make_environment(spec: TaskSpec, actuation: str = "servo", random=None, **environment_kwargs) -> control.Environment:
+    physics = make_physics()
+    physics.plane_size = spec.plane_size
+    task = Reach(spec, actuation=actuation, random=random)
+    environment_kwargs.setdefault("n_sub_steps", N_SUB_STEPS)
+    return control.Environment(physics, task, **environment_kwargs)

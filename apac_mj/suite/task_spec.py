@@ -1,0 +1,200 @@
+"""Task conditions as data: TOML files in ``tasks/``, read and validated here.
+
+A task file states every condition of the paper's experiments (target
+static/changing, kinematics static/changing, vision perfect/occluded, the
+generalization region) and the constants of the environment. Every key is
+checked: an unknown key or a bad value raises :class:`TaskSpecError` naming the
+file, the key and the problem. Users add a condition by adding a file.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from pathlib import Path
+from typing import Any
+
+from apac_mj import paths
+
+
+class TaskSpecError(ValueError):
+    """A task file (or task override) is malformed."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Region:
+    """The generalization split: the *test* region is ``y >= test_y_min``.
+
+    ``y >= 22.3`` cm is the top band of the reachable area; at the initial
+    lengths (5, 8) it covers one third of it (tests/test_suite.py measures the
+    fraction). Everything else reachable is the *train* region. The band is
+    fixed in the plane, so under growing arms more targets fall inside it, as
+    in the paper (39 vs. 42 targets).
+    """
+
+    test_y_min: float = 22.3
+
+    def contains_test(self, xy) -> bool:
+        return bool(xy[..., 1] >= self.test_y_min)
+
+
+@dataclasses.dataclass(frozen=True)
+class TaskSpec:
+    """One experimental condition. Field docs double as the file format's docs."""
+
+    name: str
+    #: One line a user reads in ``apac-mj tasks``.
+    description: str = ""
+    #: "static": one target per seed, kept for the whole run; "changing": a new target each episode.
+    target_mode: str = "changing"
+    #: Which targets may be drawn: "all", "train" (outside the test region) or "test".
+    target_region: str = "all"
+    #: Radius of the target zone around the target (cm); inside it the target is reached.
+    zone_radius: float = 0.5
+    #: "static" or "changing" (both lengths grow by ``growth_per_step`` each step).
+    kinematics_mode: str = "static"
+    #: Initial (upper arm l1, forearm l2) lengths in cm.
+    link_lengths: tuple[float, float] = (5.0, 8.0)
+    #: Growth of both lengths per environment step under changing kinematics (cm).
+    growth_per_step: float = 0.001
+    #: Growth starts after this many episodes (the paper: after the 100th).
+    growth_start_episode: int = 100
+    #: "perfect" or "occluded" (target and arm seen at the first step only).
+    vision: str = "perfect"
+    #: Action steps per episode before the time limit.
+    steps_per_episode: int = 30
+    #: Size (width, height) of the plane in cm; the plane spans [0, w] x [0, h].
+    plane_size: tuple[float, float] = (30.0, 30.0)
+    #: Shoulder position in the plane (cm).
+    origin: tuple[float, float] = (15.0, 15.0)
+    #: The generalization split.
+    region: Region = Region()
+
+    def __post_init__(self) -> None:
+        _check_choice(self, "target_mode", ("static", "changing"))
+        _check_choice(self, "target_region", ("all", "train", "test"))
+        _check_choice(self, "kinematics_mode", ("static", "changing"))
+        _check_choice(self, "vision", ("perfect", "occluded"))
+        _check_positive(self, "zone_radius", self.zone_radius)
+        for k, v in zip(("l1", "l2"), self.link_lengths):
+            _check_positive(self, f"link_lengths ({k})", v)
+        for k, v in zip(("width", "height"), self.plane_size):
+            _check_positive(self, f"plane_size ({k})", v)
+        if not math.isfinite(self.growth_per_step) or self.growth_per_step < 0:
+            raise TaskSpecError(f"task {self.name!r}: growth_per_step must be finite and >= 0, got {self.growth_per_step}")
+        if self.growth_start_episode < 0:
+            raise TaskSpecError(f"task {self.name!r}: growth_start_episode must be >= 0")
+        if self.steps_per_episode < 1:
+            raise TaskSpecError(f"task {self.name!r}: steps_per_episode must be >= 1")
+        ox, oy = self.origin
+        if not (0 <= ox <= self.plane_size[0] and 0 <= oy <= self.plane_size[1]):
+            raise TaskSpecError(f"task {self.name!r}: origin {self.origin} lies outside the plane {self.plane_size}")
+
+    @property
+    def occluded(self) -> bool:
+        return self.vision == "occluded"
+
+    def replace(self, **overrides: Any) -> "TaskSpec":
+        unknown = set(overrides) - {f.name for f in dataclasses.fields(self)}
+        if unknown:
+            raise TaskSpecError(f"task {self.name!r}: unknown override(s) {sorted(unknown)}")
+        return dataclasses.replace(self, **overrides)
+
+
+def _check_choice(spec: TaskSpec, field: str, choices: tuple[str, ...]) -> None:
+    value = getattr(spec, field)
+    if value not in choices:
+        raise TaskSpecError(f"task {spec.name!r}: {field} must be one of {choices}, got {value!r}")
+
+
+def _check_positive(spec: TaskSpec, field: str, value: float) -> None:
+    if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+        raise TaskSpecError(f"task {spec.name!r}: {field} must be a positive finite number, got {value!r}")
+
+
+# File layout: section -> {key in file: TaskSpec field}.
+_LAYOUT: dict[str, dict[str, str]] = {
+    "": {"description": "description"},
+    "target": {"mode": "target_mode", "region": "target_region", "zone_radius": "zone_radius"},
+    "kinematics": {
+        "mode": "kinematics_mode",
+        "link_lengths": "link_lengths",
+        "growth_per_step": "growth_per_step",
+        "growth_start_episode": "growth_start_episode",
+    },
+    "vision": {"mode": "vision"},
+    "episode": {"steps": "steps_per_episode"},
+    "plane": {"size": "plane_size", "origin": "origin"},
+    "region": {"test_y_min": "region"},
+}
+_PAIRS = {"link_lengths", "plane_size", "origin"}
+_FLOATS = {"zone_radius", "growth_per_step"}
+_INTS = {"growth_start_episode", "steps_per_episode"}
+
+
+def parse_task(data: dict[str, Any], name: str, source: str = "<dict>") -> TaskSpec:
+    """Validate a parsed TOML document and build the :class:`TaskSpec`."""
+    kwargs: dict[str, Any] = {}
+    for key, value in data.items():
+        if isinstance(value, dict):
+            if key not in _LAYOUT or key == "":
+                raise TaskSpecError(f"{source}: unknown section [{key}]; known: {sorted(k for k in _LAYOUT if k)}")
+            for sub, sub_value in value.items():
+                if sub not in _LAYOUT[key]:
+                    raise TaskSpecError(f"{source}: unknown key {key}.{sub}; known in [{key}]: {sorted(_LAYOUT[key])}")
+                kwargs[_LAYOUT[key][sub]] = _coerce(_LAYOUT[key][sub], sub_value, f"{source}: {key}.{sub}")
+        elif key in _LAYOUT[""]:
+            kwargs[_LAYOUT[""][key]] = str(value)
+        else:
+            raise TaskSpecError(f"{source}: unknown top-level key {key!r}")
+    try:
+        return TaskSpec(name=name, **kwargs)
+    except TaskSpecError as e:
+        raise TaskSpecError(f"{source}: {e}") from None
+
+
+def _coerce(field: str, value: Any, where: str) -> Any:
+    if field == "region":
+        return Region(test_y_min=_number(value, where))
+    if field in _PAIRS:
+        if not isinstance(value, list) or len(value) != 2:
+            raise TaskSpecError(f"{where} must be a list of two numbers, got {value!r}")
+        return (_number(value[0], where), _number(value[1], where))
+    if field in _FLOATS:
+        return _number(value, where)
+    if field in _INTS:
+        if not isinstance(value, int) or isinstance(value, bool):
+            raise TaskSpecError(f"{where} must be an integer, got {value!r}")
+        return value
+    if not isinstance(value, str):
+        raise TaskSpecError(f"{where} must be a string, got {value!r}")
+    return value
+
+
+def _number(value: Any, where: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise TaskSpecError(f"{where} must be a finite number, got {value!r}")
+    return float(value)
+
+
+def load_task_file(path: str | Path) -> TaskSpec:
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as e:
+        raise TaskSpecError(f"{path}: not valid TOML: {e}") from None
+    return parse_task(data, name=path.stem, source=str(path))
+
+
+def task_names(directory: Path | None = None) -> list[str]:
+    directory = directory or paths.tasks_dir()
+    return sorted(p.stem for p in directory.glob("*.toml"))
+
+
+def load_task(name: str, directory: Path | None = None) -> TaskSpec:
+    """Load ``tasks/<name>.toml``; an unknown name lists the known ones."""
+    directory = directory or paths.tasks_dir()
+    path = directory / f"{name}.toml"
+    if not path.is_file():
+        raise KeyError(f"unknown task {name!r}; known tasks: {', '.join(task_names(directory))}")
+    return load_task_file(path)
