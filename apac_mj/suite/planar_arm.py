@@ -9,6 +9,7 @@ from __future__ import annotations
 import collections
 import math
 
+import mujoco
 import numpy as np
 from dm_control.mujoco import engine
 from dm_control.rl import control
@@ -19,10 +20,15 @@ from apac_mj import paths
 from apac_mj.kinematics import motion_function
 from apac_mj.suite.task_spec import TaskSpec
 
-#: Physics sub-steps per environment step. With the servo gains in the MJCF
-#: (kp = 1e4, kv = 200, 10 ms sub-steps) the slowest move (180 deg on both
-#: joints) settles to < 0.01 deg in 20 sub-steps; 40 leaves a 2x margin.
+#: Physics sub-steps per environment step under servo actuation. With the
+#: servo gains in the MJCF (kp = 1e4, kv = 200, rotor armature 1, 10 ms
+#: sub-steps) a 180 deg move on both joints is within ~0.01 deg after 20
+#: sub-steps, ~1e-4 deg after 30 and ~1e-6 deg after 40 (tests/test_suite.py
+#: checks < 0.01 deg at several link lengths).
 N_SUB_STEPS = 40
+#: Physics sub-steps per step under kinematic actuation: the angles are
+#: written exactly and the servos hold them, so one sub-step is enough.
+KINEMATIC_SUB_STEPS = 1
 #: Joint range of both hinges, degrees.
 JOINT_RANGE = (0.0, 180.0)
 #: Bound of each action component (change of a joint angle), degrees.
@@ -32,84 +38,155 @@ START_ANGLES = (0.0, 180.0)
 ACTUATIONS = ("servo", "kinematic")
 
 
-def _rad(deg):
-    return np.asarray(deg, dtype=np.float64) * (np.pi / 180.0)
+class _Ids:
+    """Indices of the named model elements, resolved once per model.
 
+    The hot paths (observation, reward, servo setpoints) index MuJoCo's arrays
+    with these integers instead of dm_control's named indexing, which costs a
+    dictionary lookup and a fancy-index copy per access.
+    """
 
-def _deg(rad):
-    return np.asarray(rad, dtype=np.float64) * (180.0 / np.pi)
+    def __init__(self, model: mujoco.MjModel) -> None:
+        def idx(kind: mujoco.mjtObj, name: str) -> int:
+            i = mujoco.mj_name2id(model, kind, name)
+            if i < 0:
+                raise KeyError(f"the arm model has no {kind.name} named {name!r}")
+            return i
+
+        site, body, geom, joint, act = (mujoco.mjtObj.mjOBJ_SITE, mujoco.mjtObj.mjOBJ_BODY, mujoco.mjtObj.mjOBJ_GEOM,
+                                        mujoco.mjtObj.mjOBJ_JOINT, mujoco.mjtObj.mjOBJ_ACTUATOR)
+        self.end_site = idx(site, "end_effector")
+        self.elbow_site = idx(site, "elbow")
+        self.target_site = idx(site, "target")
+        self.zone_site = idx(site, "target_zone")
+        self.upper_body = idx(body, "upper_arm")
+        self.fore_body = idx(body, "forearm")
+        self.upper_geom = idx(geom, "upper_arm")
+        self.fore_geom = idx(geom, "forearm")
+        joints = [idx(joint, "shoulder"), idx(joint, "elbow")]
+        self.qpos = np.array([model.jnt_qposadr[j] for j in joints])
+        self.qvel = np.array([model.jnt_dofadr[j] for j in joints])
+        self.ctrl = np.array([idx(act, "shoulder_servo"), idx(act, "elbow_servo")])
 
 
 class Physics(engine.Physics):
-    """The arm's MuJoCo physics with the paper's named geometric queries."""
+    """The arm's MuJoCo physics with the paper's named geometric queries (cm, degrees).
+
+    The queries read MuJoCo's raw ``MjModel``/``MjData`` arrays through element
+    indices resolved once per (re)load (:class:`_Ids`): dm_control's named
+    indexing costs more than the physics itself at this model's size.
+    """
 
     # Plane bounds, set by the task that owns this physics.
     plane_size: tuple[float, float] = (30.0, 30.0)
 
+    def _reload_from_data(self, data) -> None:
+        # Set before the base class runs after_reset(), and again on every copy/reload.
+        self._m, self._d = data.model.ptr, data.ptr
+        self.ids = _Ids(self._m)
+        super()._reload_from_data(data)
+
     def end_effector(self) -> np.ndarray:
-        return self.named.data.site_xpos["end_effector", :2].copy()
+        return self._d.site_xpos[self.ids.end_site, :2].copy()
 
     def elbow(self) -> np.ndarray:
-        return self.named.data.site_xpos["elbow", :2].copy()
+        return self._d.site_xpos[self.ids.elbow_site, :2].copy()
 
     def target(self) -> np.ndarray:
-        return self.named.model.site_pos["target", :2].copy()
+        return self._m.site_pos[self.ids.target_site, :2].copy()
 
     def origin(self) -> np.ndarray:
-        return self.named.model.body_pos["upper_arm", :2].copy()
+        return self._m.body_pos[self.ids.upper_body, :2].copy()
+
+    def set_origin(self, xy) -> None:
+        """Move the shoulder to ``xy`` (cm) on the plane."""
+        self._m.body_pos[self.ids.upper_body, :2] = check_target(xy, self.plane_size)
+        self.forward()
 
     def distance_to_target(self) -> float:
-        return float(np.linalg.norm(self.end_effector() - self.target()))
+        end = self._d.site_xpos[self.ids.end_site]
+        target = self._m.site_pos[self.ids.target_site]
+        return math.hypot(end[0] - target[0], end[1] - target[1])
 
     def joint_angles(self) -> np.ndarray:
         """(shoulder, elbow) in degrees."""
-        return _deg(self.named.data.qpos[["shoulder", "elbow"]])
+        return self._d.qpos[self.ids.qpos] * (180.0 / np.pi)
 
     def link_lengths(self) -> np.ndarray:
         """(l1, l2) in cm: shoulder->elbow and elbow->end-effector."""
-        return np.array([self.named.model.body_pos["forearm", 0], self.named.model.site_pos["end_effector", 0]])
+        ids = self.ids
+        return np.array([self._m.body_pos[ids.fore_body, 0], self._m.site_pos[ids.end_site, 0]])
 
     def set_joint_angles(self, alpha_deg: float, beta_deg: float) -> None:
         """Place the arm at these angles, at rest, with the servos holding them."""
-        angles = np.array([alpha_deg, beta_deg], dtype=np.float64)
-        if not np.all(np.isfinite(angles)):
-            raise ValueError(f"joint angles must be finite, got {angles}")
         lo, hi = JOINT_RANGE
-        if np.any(angles < lo) or np.any(angles > hi):
-            raise ValueError(f"joint angles {angles} outside the joint range [{lo}, {hi}] degrees")
-        q = _rad(angles)
-        self.named.data.qpos[["shoulder", "elbow"]] = q
-        self.named.data.qvel[["shoulder", "elbow"]] = 0.0
-        self.named.data.ctrl[["shoulder_servo", "elbow_servo"]] = q
-        self.forward()
+        for name, value in (("shoulder", alpha_deg), ("elbow", beta_deg)):
+            if not math.isfinite(value) or not lo <= value <= hi:
+                raise ValueError(f"{name} angle must be finite and within the joint range [{lo}, {hi}] degrees, "
+                                 f"got {value!r}")
+        self.write_joint_angles(np.array([alpha_deg, beta_deg], dtype=np.float64))
+
+    def write_joint_angles(self, angles_deg: np.ndarray) -> None:
+        """:meth:`set_joint_angles` without the checks, for angles already clipped to the range."""
+        q = angles_deg * (np.pi / 180.0)
+        ids = self.ids
+        self._d.qpos[ids.qpos] = q
+        self._d.qvel[ids.qvel] = 0.0
+        self._d.ctrl[ids.ctrl] = q
+        mujoco.mj_forward(self._m, self._d)  # positions only: no step, so no instability to check
+
+    def set_servo_setpoint(self, angles_deg) -> None:
+        """Command the position servos to these (shoulder, elbow) angles in degrees."""
+        self._d.ctrl[self.ids.ctrl] = np.asarray(angles_deg, dtype=np.float64) * (np.pi / 180.0)
 
     def set_link_lengths(self, l1: float, l2: float) -> None:
-        """Change both link lengths in place (no recompilation)."""
-        for name, value in (("l1", l1), ("l2", l2)):
-            if not isinstance(value, (int, float, np.floating, np.integer)) or not math.isfinite(value) or value <= 0:
-                raise ValueError(f"link length {name} must be a positive finite number, got {value!r}")
-        m = self.named.model
-        m.body_pos["forearm"] = [l1, 0.0, 0.0]
-        m.geom_pos["upper_arm"] = [l1 / 2.0, 0.0, 0.0]
-        m.geom_size["upper_arm", 1] = l1 / 2.0
-        m.geom_pos["forearm"] = [l2 / 2.0, 0.0, 0.0]
-        m.geom_size["forearm", 1] = l2 / 2.0
-        m.site_pos["end_effector"] = [l2, 0.0, 0.0]
+        """Change both link lengths in place (no recompilation).
+
+        Moves the elbow body and the end-effector site and stretches both
+        capsules (position, half-length and bounding volumes), so the sites, the
+        rendered arm and :func:`motion_function` agree afterwards. Masses are
+        left alone: the servos' rotor armature dominates the arm's inertia.
+        """
+        check_link_lengths(l1, l2)
+        m, ids = self._m, self.ids
+        m.body_pos[ids.fore_body] = [l1, 0.0, 0.0]
+        m.site_pos[ids.end_site] = [l2, 0.0, 0.0]
+        for geom, length in ((ids.upper_geom, l1), (ids.fore_geom, l2)):
+            radius = m.geom_size[geom, 0]
+            m.geom_pos[geom] = [length / 2.0, 0.0, 0.0]
+            m.geom_size[geom, 1] = length / 2.0
+            m.geom_rbound[geom] = length / 2.0 + radius
+            m.geom_aabb[geom, 5] = length / 2.0 + radius
         self.forward()
 
     def set_target(self, xy) -> None:
         """Move the target (and its zone) to ``xy``, which must lie on the plane."""
-        xy = np.asarray(xy, dtype=np.float64)
-        if xy.shape != (2,) or not np.all(np.isfinite(xy)):
-            raise ValueError(f"target must be a finite (x, y) pair, got {xy!r}")
-        w, h = self.plane_size
-        if not (0.0 <= xy[0] <= w and 0.0 <= xy[1] <= h):
-            raise ValueError(f"target {xy.tolist()} lies outside the {w} x {h} plane")
-        self.named.model.site_pos["target", :2] = xy
-        self.named.model.site_pos["target_zone", :2] = xy
+        xy = check_target(xy, self.plane_size)
+        ids = self.ids
+        self._m.site_pos[ids.target_site, :2] = xy
+        self._m.site_pos[ids.zone_site, :2] = xy
 
     def set_zone_radius(self, radius: float) -> None:
-        self.named.model.site_size["target_zone", 0] = radius
+        self._m.site_size[self.ids.zone_site, 0] = radius
+
+
+def check_link_lengths(l1: float, l2: float) -> None:
+    """Raise ValueError unless both lengths are positive finite real numbers."""
+    for name, value in (("l1", l1), ("l2", l2)):
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) \
+                or not math.isfinite(value) or value <= 0:
+            raise ValueError(f"link length {name} must be a positive finite number (cm), got {value!r}")
+
+
+def check_target(xy, plane_size: tuple[float, float]) -> np.ndarray:
+    """``xy`` as a float (2,) array; raises ValueError unless it is a finite point on the plane."""
+    xy = np.asarray(xy, dtype=np.float64)
+    if xy.shape != (2,) or not np.all(np.isfinite(xy)):
+        raise ValueError(f"target must be a finite (x, y) pair, got {xy!r}")
+    w, h = plane_size
+    if not (0.0 <= xy[0] <= w and 0.0 <= xy[1] <= h):
+        raise ValueError(f"target {xy.tolist()} lies outside the {w} x {h} plane")
+    return xy
 
 
 class Reach(base.Task):
@@ -138,11 +215,15 @@ class Reach(base.Task):
 
     # -- run-time controls ----------------------------------------------------
     def set_target_override(self, xy) -> None:
-        """Use ``xy`` as the target of the following episodes (None: sample again)."""
-        self._target_override = None if xy is None else np.asarray(xy, dtype=np.float64).copy()
+        """Use ``xy`` as the target of the following episodes (None: sample again).
+
+        Raises ValueError if ``xy`` is not a finite point on the task's plane.
+        """
+        self._target_override = None if xy is None else check_target(xy, self.spec.plane_size).copy()
 
     def set_link_lengths(self, l1: float, l2: float) -> None:
         """Lengths used from the next reset on (and kept under changing kinematics)."""
+        check_link_lengths(l1, l2)
         self._lengths = np.array([l1, l2], dtype=np.float64)
 
     @property
@@ -158,7 +239,7 @@ class Reach(base.Task):
         self.episode += 1
         self.step_count = 0
         physics.plane_size = self.spec.plane_size
-        physics.named.model.body_pos["upper_arm", :2] = self.spec.origin
+        physics.set_origin(self.spec.origin)
         physics.set_zone_radius(self.spec.zone_radius)
         if self.spec.kinematics_mode == "static":
             self._lengths = np.array(self.spec.link_lengths, dtype=np.float64)
@@ -205,11 +286,12 @@ class Reach(base.Task):
             self._lengths = self._lengths + self.spec.growth_per_step
             physics.set_link_lengths(*self._lengths)
         lo, hi = JOINT_RANGE
-        setpoint = np.clip(physics.joint_angles() + np.clip(action, -ACTION_BOUND, ACTION_BOUND), lo, hi)
+        change = np.minimum(np.maximum(action, -ACTION_BOUND), ACTION_BOUND)
+        setpoint = np.minimum(np.maximum(physics.joint_angles() + change, lo), hi)
         if self.actuation == "kinematic":
-            physics.set_joint_angles(*setpoint)
+            physics.write_joint_angles(setpoint)
         else:
-            physics.named.data.ctrl[["shoulder_servo", "elbow_servo"]] = _rad(setpoint)
+            physics.set_servo_setpoint(setpoint)
 
     def after_step(self, physics: Physics) -> None:
         self.step_count += 1
@@ -269,5 +351,5 @@ def make_environment(spec: TaskSpec, actuation: str = "servo", random=None, **en
     physics = make_physics()
     physics.plane_size = spec.plane_size
     task = Reach(spec, actuation=actuation, random=random)
-    environment_kwargs.setdefault("n_sub_steps", N_SUB_STEPS)
+    environment_kwargs.setdefault("n_sub_steps", N_SUB_STEPS if actuation == "servo" else KINEMATIC_SUB_STEPS)
     return control.Environment(physics, task, **environment_kwargs)
