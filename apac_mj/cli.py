@@ -12,6 +12,7 @@ import sys
 #: (module, description) for every sub-command module; each registers its own parsers.
 COMMAND_MODULES = [
     "apac_mj.commands.tasks",
+    "apac_mj.commands.check_kinematics",
 ]
 
 

@@ -6,15 +6,25 @@ import argparse
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("tasks", help="list the task conditions (tasks/*.toml)",
-                       description="List every task file in tasks/ with its conditions.")
+                       description="List every task file in tasks/ with its conditions. With --regions, also "
+                                   "measure each task's generalization split at its initial link lengths: the "
+                                   "fraction of the reachable area in the test region and how many of the 100 "
+                                   "angle-grid test targets fall in it.")
+    p.add_argument("--regions", action="store_true", help="measure the test region of each task (a few seconds)")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    from apac_mj.suite.regions import region_stats
     from apac_mj.suite.task_spec import load_task, task_names
 
     for name in task_names():
         s = load_task(name)
-        print(f"{name:48s} target={s.target_mode:8s} kinematics={s.kinematics_mode:8s} "
-              f"vision={s.vision:8s} region={s.target_region}")
+        line = (f"{name:48s} target={s.target_mode:8s} kinematics={s.kinematics_mode:8s} "
+                f"vision={s.vision:8s} region={s.target_region}")
+        if args.regions:
+            r = region_stats(s)
+            line += (f"  test y>={r.test_y_min}: {r.test_area_fraction:.3f} of area, "
+                     f"{r.grid_targets_in_test}/{r.grid_targets} grid targets")
+        print(line)
     return 0
