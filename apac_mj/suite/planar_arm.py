@@ -143,16 +143,21 @@ class Physics(engine.Physics):
         """Change both link lengths in place (no recompilation).
 
         Moves the elbow body and the end-effector site and stretches both
-        capsules (position, half-length and bounding volumes), so the sites, the
-        rendered arm and :func:`motion_function` agree afterwards. Masses are
-        left alone: the servos' rotor armature dominates the arm's inertia.
+        capsules (position, half-length and bounding volumes) and moves each
+        link's centre of mass to its middle: MuJoCo places a geom that shares
+        its body's inertial frame (``geom_sameframe``) at the body's centre of
+        mass, so the rendered capsules follow ``body_ipos``. Afterwards the
+        sites, the rendered arm and :func:`motion_function` agree. Masses and
+        rotational inertias are left alone: the servos' rotor armature (1)
+        dominates them (< 0.01).
         """
         check_link_lengths(l1, l2)
         m, ids = self._m, self.ids
         m.body_pos[ids.fore_body] = [l1, 0.0, 0.0]
         m.site_pos[ids.end_site] = [l2, 0.0, 0.0]
-        for geom, length in ((ids.upper_geom, l1), (ids.fore_geom, l2)):
+        for body, geom, length in ((ids.upper_body, ids.upper_geom, l1), (ids.fore_body, ids.fore_geom, l2)):
             radius = m.geom_size[geom, 0]
+            m.body_ipos[body] = [length / 2.0, 0.0, 0.0]
             m.geom_pos[geom] = [length / 2.0, 0.0, 0.0]
             m.geom_size[geom, 1] = length / 2.0
             m.geom_rbound[geom] = length / 2.0 + radius
