@@ -1,0 +1,425 @@
+"""Rollouts as Rerun recordings (.rrd). **Every** Rerun call of the project lives here.
+
+A recording shows what the agent did (the MuJoCo render and the arm in the
+plane), why the arbitrator chose what it chose (|delta| against the threshold,
+the controller that acted) and that the physics matches the paper's motion
+function (the MuJoCo arm and the motion-function arm overlaid, and their
+maximum difference as a time series). ``docs/recording.md`` describes every
+entity path; :data:`ENTITY_PATHS` lists them.
+
+Timelines: ``episode`` and ``step`` (the step within the episode; step 0 is
+the start pose), plus ``frame``, a counter over the whole recording, so that
+several episodes play one after another.
+"""
+from __future__ import annotations
+
+import dataclasses
+import subprocess
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from apac_mj.kinematics import DEFAULT_ORIGIN, motion_function
+from apac_mj.render import Renderer, encode_jpeg
+
+APPLICATION_ID = "apac_mj"
+
+# -- entity paths -----------------------------------------------------------------
+RENDER = "render/overhead"
+PLANE = "plane"
+FIELD = "plane/distance_field"
+ARM_MUJOCO = "plane/arm/mujoco"
+ARM_MOTION_FUNCTION = "plane/arm/motion_function"
+ARM_FORWARD_MODEL = "plane/arm/forward_model"
+TARGET = "plane/target"
+TARGET_ZONE = "plane/target_zone"
+PATH = "plane/end_effector_path"
+BORDER = "plane/border"
+SHOULDER = "plane/shoulder"
+REWARD = "series/reward"
+DISTANCE = "series/distance"
+ABS_DELTA = "series/arbitration/abs_delta"
+DELTA_THRESHOLD = "series/arbitration/threshold"
+CONTROLLER = "series/arbitration/controller"
+FORWARD_ERROR = "series/forward_model_error"
+KINEMATICS_ERROR = "series/kinematics_error"
+L1 = "series/link_lengths/l1"
+L2 = "series/link_lengths/l2"
+VISION = "series/vision"
+EVENTS = "events"
+
+#: Entity paths every recording holds (the forward-model arm only where the agent predicts one).
+ENTITY_PATHS = (
+    RENDER, FIELD, ARM_MUJOCO, ARM_MOTION_FUNCTION, TARGET, TARGET_ZONE, PATH, REWARD, DISTANCE,
+    ABS_DELTA, DELTA_THRESHOLD, CONTROLLER, FORWARD_ERROR, KINEMATICS_ERROR, L1, L2, VISION, EVENTS,
+)
+
+#: Controller series values.
+HABIT, PLANNING = 1.0, 0.0
+#: Pixels per cm of the distance-field image.
+FIELD_PX_PER_CM = 5
+#: Spacing of the contour bands in the distance field (cm).
+CONTOUR_CM = 2.0
+
+_BLACK, _GREY = (20, 20, 20), (150, 150, 150)
+_ORANGE, _GREEN, _RED, _BLUE = (255, 140, 0), (30, 170, 60), (220, 30, 30), (30, 80, 240)
+
+
+@dataclasses.dataclass
+class StepRecord:
+    """What one member did at one step, in the paper's units (cm, degrees).
+
+    ``true_arm`` is ``[end_x, end_y, elbow_x, elbow_y]`` read from MuJoCo's
+    sites; ``predicted_arm`` is the forward model's prediction of it (NaN where
+    the agent made none); ``delta`` is the TD error that the arbitrator used
+    (NaN where none); ``habit`` says whether the actor acted.
+    """
+
+    episode: int
+    step: int
+    true_arm: np.ndarray
+    joint_angles: np.ndarray
+    link_lengths: np.ndarray
+    target: np.ndarray
+    reward: float = float("nan")
+    distance: float = float("nan")
+    delta: float = float("nan")
+    habit: bool = False
+    predicted_arm: np.ndarray = dataclasses.field(default_factory=lambda: np.full(4, np.nan))
+    vision: bool = True
+    reached: bool = False
+    done: bool = False
+
+    @classmethod
+    def from_step_info(cls, info: Any, member: int) -> "StepRecord":
+        """The record of ``member`` from a member-batched ``apac_mj.rollout.StepInfo``."""
+        def at(name: str) -> Any:
+            return np.asarray(getattr(info, name))[member]
+
+        return cls(
+            episode=int(at("episode")), step=int(at("step")),
+            true_arm=_f64(at("true_arm")), joint_angles=_f64(at("joint_angles")),
+            link_lengths=_f64(at("link_lengths")), target=_f64(at("target")),
+            reward=float(at("reward")), distance=float(at("distance")), delta=float(at("delta")),
+            habit=bool(at("habit")), predicted_arm=_f64(at("predicted_arm")),
+            vision=bool(at("vision")), reached=bool(at("reached")), done=bool(at("done")),
+        )
+
+
+def _f64(x: Any) -> np.ndarray:
+    return np.asarray(x, dtype=np.float64).copy()
+
+
+def kinematics_error(rec: StepRecord, origin: Sequence[float] = DEFAULT_ORIGIN) -> float:
+    """max |MuJoCo arm - motion function arm| over both points and both coordinates (cm)."""
+    end, elbow = motion_function(*rec.joint_angles, *rec.link_lengths, origin)
+    return float(np.max(np.abs(rec.true_arm - np.concatenate([end, elbow]))))
+
+
+def forward_model_error(rec: StepRecord) -> float:
+    """Distance between the predicted and the true end-effector (cm); NaN without a prediction."""
+    return float(np.linalg.norm(rec.predicted_arm[:2] - rec.true_arm[:2]))
+
+
+def git_commit(repo: Path | None = None) -> str:
+    """The checkout's commit (with ``-dirty`` for local changes), or "unknown"."""
+    repo = repo or Path(__file__).resolve().parent.parent
+    try:
+        out = subprocess.run(["git", "describe", "--always", "--dirty", "--abbrev=40"], cwd=repo,
+                             capture_output=True, text=True, timeout=10, check=True)
+        return out.stdout.strip() or "unknown"
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+def default_blueprint(plane_size: Sequence[float] = (30.0, 30.0)) -> rrb.Blueprint:
+    """Render | plane view | time series side by side, with the events log under the render."""
+    w, h = plane_size
+    series = rrb.Vertical(
+        rrb.TimeSeriesView(origin="series", contents=[f"+ {DISTANCE}", f"+ {REWARD}"], name="distance, reward"),
+        rrb.TimeSeriesView(origin="series/arbitration", name="|delta| vs threshold, controller (1 habit, 0 planning)"),
+        rrb.TimeSeriesView(origin="series", contents=[f"+ {FORWARD_ERROR}", f"+ {KINEMATICS_ERROR}"],
+                           name="forward-model error, kinematics error (cm)"),
+        rrb.TimeSeriesView(origin="series", contents=[f"+ {L1}", f"+ {L2}", f"+ {VISION}"],
+                           name="link lengths, vision"),
+    )
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Vertical(
+                rrb.Spatial2DView(origin="render", name="MuJoCo overhead render"),
+                rrb.TextLogView(origin=EVENTS, name="events"),
+                row_shares=[3, 1],
+            ),
+            # Origin "/" so that the plane entity's y-flip applies (a view's own origin transform is ignored).
+            rrb.Spatial2DView(origin="/", contents=f"+ {PLANE}/**", name="plane (cm): MuJoCo / motion function / forward model",
+                              visual_bounds=rrb.VisualBounds2D(x_range=[0, w], y_range=[0, h])),
+            series,
+            column_shares=[1, 1.2, 1.2],
+        ),
+        rrb.TimePanel(timeline="frame", play_state="following"),
+        collapse_panels=True,
+    )
+
+
+def distance_field(target: Sequence[float], plane_size: Sequence[float]) -> np.ndarray:
+    """The paper's contour plot as an RGB image: distance to the target with contour bands.
+
+    Row ``r`` covers ``y = r / FIELD_PX_PER_CM`` (row 0 is y = 0): the plane
+    entity's transform flips it so that +y points up.
+    """
+    import matplotlib
+
+    w, h = plane_size
+    xs = (np.arange(int(w * FIELD_PX_PER_CM)) + 0.5) / FIELD_PX_PER_CM
+    ys = (np.arange(int(h * FIELD_PX_PER_CM)) + 0.5) / FIELD_PX_PER_CM
+    d = np.hypot(xs[None, :] - target[0], ys[:, None] - target[1])
+    rgb = matplotlib.colormaps["viridis"](d / np.hypot(w, h))[..., :3]
+    rgb = 0.45 * rgb + 0.55  # pastel, so that the arms drawn on top stand out
+    band = (d % CONTOUR_CM) < (1.2 / FIELD_PX_PER_CM)
+    rgb[band] *= 0.75
+    return (rgb * 255).astype(np.uint8)
+
+
+def _arm_strip(arm: np.ndarray, origin: Sequence[float]) -> np.ndarray:
+    """Shoulder -> elbow -> end-effector polyline from ``[end_x, end_y, elbow_x, elbow_y]``."""
+    return np.array([origin, arm[2:4], arm[0:2]], dtype=np.float64)
+
+
+def _dashed(strip: np.ndarray, dash: float = 0.6) -> list[np.ndarray]:
+    """Split a polyline into dashes of length ``dash`` (the paper draws the prediction dashed)."""
+    pieces = []
+    for a, b in zip(strip[:-1], strip[1:]):
+        n = max(1, int(np.linalg.norm(b - a) / dash))
+        ts = np.linspace(0.0, 1.0, n + 1)
+        pieces += [np.array([a + (b - a) * ts[i], a + (b - a) * ts[i + 1]]) for i in range(0, n, 2)]
+    return pieces
+
+
+class Recording:
+    """One .rrd file being written: episodes, steps, events, properties, blueprint.
+
+    Args:
+      path: the .rrd file to write (its folder is created).
+      config: the run's configuration, saved as the ``config`` recording property.
+      name: the recording's name in the viewer.
+      origin, plane_size, zone_radius, delta_threshold: the task's geometry and the arbitration threshold.
+    """
+
+    def __init__(self, path: str | Path, config: dict[str, Any] | None = None, *, name: str = "rollout",
+                 origin: Sequence[float] = DEFAULT_ORIGIN, plane_size: Sequence[float] = (30.0, 30.0),
+                 zone_radius: float = 0.5, delta_threshold: float = 1.0) -> None:
+        self.path = Path(path)
+        if self.path.suffix != ".rrd":
+            raise ValueError(f"recording file must end in .rrd, got {str(path)!r}")
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.origin = tuple(float(v) for v in origin)
+        self.plane_size = tuple(float(v) for v in plane_size)
+        self.zone_radius = float(zone_radius)
+        self.delta_threshold = float(delta_threshold)
+        self.frames = 0
+        self._path_points: list[np.ndarray] = []
+        self._stream = rr.RecordingStream(APPLICATION_ID, recording_id=f"{name}", make_default=False)
+        self._stream.save(str(self.path), default_blueprint=default_blueprint(self.plane_size))
+        self._stream.send_recording_name(name)
+        self._send_properties(config or {})
+        self._log_static()
+
+    # -- set-up ---------------------------------------------------------------------
+    def _send_properties(self, config: dict[str, Any]) -> None:
+        flat = {k: _property_value(v) for k, v in _flatten(config).items()}
+        flat.setdefault("git_commit", git_commit())
+        self._stream.send_property("config", rr.AnyValues(**flat))
+
+    def _log_static(self) -> None:
+        s = self._stream
+        h = self.plane_size[1]
+        # The 2D view draws +y down; flip it so that the plane reads as in the paper (+y up).
+        s.log(PLANE, rr.Transform3D(translation=[0.0, h, 0.0], scale=[1.0, -1.0, 1.0]), static=True)
+        s.log(FIELD, rr.Transform3D(scale=[1.0 / FIELD_PX_PER_CM] * 3), static=True)
+        w = self.plane_size[0]
+        border = np.array([[0, 0], [w, 0], [w, h], [0, h], [0, 0]], dtype=np.float64)
+        s.log(BORDER, rr.LineStrips2D([border], colors=[_GREY], radii=[0.05]), static=True)
+        s.log(SHOULDER, rr.Points2D([self.origin], radii=[0.3], colors=[_BLACK], labels=["shoulder"]), static=True)
+        styles = {
+            REWARD: _ORANGE, DISTANCE: _BLUE, ABS_DELTA: _ORANGE, DELTA_THRESHOLD: _GREY, CONTROLLER: _GREEN,
+            FORWARD_ERROR: _GREEN, KINEMATICS_ERROR: _RED, L1: _BLACK, L2: _GREY, VISION: _BLUE,
+        }
+        for path, color in styles.items():
+            s.log(path, rr.SeriesLines(colors=[color], names=[path.rsplit("/", 1)[-1]]), static=True)
+
+    # -- logging ----------------------------------------------------------------------
+    def _set_time(self, episode: int, step: int) -> None:
+        self._stream.set_time("episode", sequence=int(episode))
+        self._stream.set_time("step", sequence=int(step))
+        self._stream.set_time("frame", sequence=self.frames)
+
+    def start_episode(self, episode: int, target: Sequence[float], link_lengths: Sequence[float],
+                      note: str = "") -> None:
+        """Log the episode's target, target zone and distance field, and the start event."""
+        self._path_points = []
+        self._set_time(episode, 0)
+        target = np.asarray(target, dtype=np.float64)
+        s = self._stream
+        s.log(TARGET, rr.Points2D([target], radii=[0.25], colors=[_RED]))
+        s.log(TARGET_ZONE, rr.Ellipses2D(centers=[target], half_sizes=[[self.zone_radius] * 2],
+                                         colors=[_RED], line_radii=[0.05]))
+        field = distance_field(target, self.plane_size)
+        s.log(FIELD, rr.EncodedImage(contents=encode_jpeg(field, quality=80), media_type="image/jpeg",
+                                     draw_order=-10.0, magnification_filter="Linear"))
+        l1, l2 = (float(v) for v in link_lengths)
+        extra = f" {note}" if note else ""
+        self.event(f"episode {episode} starts: target ({target[0]:.2f}, {target[1]:.2f}) cm, "
+                   f"lengths l1={l1:.3f} l2={l2:.3f} cm{extra}")
+
+    def event(self, text: str, level: str = "INFO") -> None:
+        """A text event at the current time."""
+        self._stream.log(EVENTS, rr.TextLog(text, level=level))
+
+    def log_step(self, rec: StepRecord, frame_jpeg: bytes | None) -> None:
+        """Log one step: the render, the three arms, the path and every time series."""
+        self._set_time(rec.episode, rec.step)
+        if frame_jpeg is not None:
+            self._stream.log(RENDER, rr.EncodedImage(contents=frame_jpeg, media_type="image/jpeg"))
+        self._log_arms(rec)
+        self._log_series(rec)
+        self._log_step_events(rec)
+        self.frames += 1
+
+    def _log_arms(self, rec: StepRecord) -> None:
+        s = self._stream
+        arm = _arm_strip(rec.true_arm, self.origin)
+        s.log(ARM_MUJOCO, rr.LineStrips2D([arm], colors=[_BLACK], radii=[0.3], draw_order=[20.0]))
+        end, elbow = motion_function(*rec.joint_angles, *rec.link_lengths, self.origin)
+        mf = _arm_strip(np.concatenate([end, elbow]), self.origin)
+        s.log(ARM_MOTION_FUNCTION, rr.LineStrips2D([mf], colors=[_ORANGE], radii=[0.1], draw_order=[21.0]))
+        if np.all(np.isfinite(rec.predicted_arm)):
+            dashes = _dashed(_arm_strip(rec.predicted_arm, self.origin))
+            s.log(ARM_FORWARD_MODEL, rr.LineStrips2D(dashes, colors=[_GREEN], radii=[0.15], draw_order=[22.0]))
+        else:
+            s.log(ARM_FORWARD_MODEL, rr.Clear(recursive=False))
+        self._path_points.append(rec.true_arm[:2].copy())
+        s.log(PATH, rr.LineStrips2D([np.array(self._path_points)], colors=[_BLUE], radii=[0.08], draw_order=[15.0]))
+
+    def _log_series(self, rec: StepRecord) -> None:
+        values = {
+            REWARD: rec.reward, DISTANCE: rec.distance, ABS_DELTA: abs(rec.delta),
+            DELTA_THRESHOLD: self.delta_threshold, CONTROLLER: HABIT if rec.habit else PLANNING,
+            FORWARD_ERROR: forward_model_error(rec), KINEMATICS_ERROR: kinematics_error(rec, self.origin),
+            L1: rec.link_lengths[0], L2: rec.link_lengths[1], VISION: 1.0 if rec.vision else 0.0,
+        }
+        for path, value in values.items():
+            if np.isfinite(value):
+                self._stream.log(path, rr.Scalars(float(value)))
+
+    def _log_step_events(self, rec: StepRecord) -> None:
+        if rec.step > 0 and not rec.vision:
+            self.event(f"occluded: arm and target not seen at step {rec.step}", level="DEBUG")
+        if rec.reached:
+            self.event(f"target reached at step {rec.step} (distance {rec.distance:.3f} cm)")
+        elif rec.done:
+            self.event(f"time limit at step {rec.step} (distance {rec.distance:.3f} cm)", level="WARN")
+
+    def close(self) -> None:
+        """Flush and close the file."""
+        self._stream.flush()
+        self._stream.disconnect()
+
+    def __enter__(self) -> "Recording":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def _flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, dict):
+            out.update(_flatten(v, f"{key}."))
+        else:
+            out[key] = v
+    return out
+
+
+def _property_value(v: Any) -> Any:
+    if isinstance(v, (bool, int, float, str)):
+        return v
+    if isinstance(v, (list, tuple)) and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
+        return [float(x) for x in v]
+    return str(v)
+
+
+# -- reading recordings back (tests, checks) -----------------------------------------------
+@dataclasses.dataclass
+class EntityRows:
+    """The rows of one entity read back from a .rrd: timeline columns and component columns."""
+
+    times: dict[str, list[int]]
+    components: dict[str, list[Any]]
+
+
+def read_recording(path: str | Path) -> tuple[dict[str, EntityRows], dict[str, Any], int]:
+    """Read a .rrd back without a viewer.
+
+    Returns ``(entities, properties, blueprints)``: the temporal rows per entity
+    path (without the leading "/"), the ``config`` property, and the number of
+    blueprint stores in the file.
+    """
+    from rerun.chunk import RrdReader
+
+    reader = RrdReader(str(path))
+    entities: dict[str, EntityRows] = {}
+    properties: dict[str, Any] = {}
+    for chunk in reader.stream():
+        table = chunk.to_record_batch().to_pydict()
+        path_ = chunk.entity_path.lstrip("/")
+        if path_ == "__properties/config":
+            properties.update({k: v[0] for k, v in table.items() if not k.startswith("rerun.")})
+        if chunk.is_static:
+            continue
+        rows = entities.setdefault(path_, EntityRows({}, {}))
+        for col, values in table.items():
+            if col in chunk.timeline_names:
+                rows.times.setdefault(col, []).extend(values)
+            elif not col.startswith("rerun."):
+                rows.components.setdefault(col, []).extend(values)
+    return entities, properties, len(reader.blueprints())
+
+
+def scalar_series(rows: EntityRows, timeline: str = "frame") -> tuple[np.ndarray, np.ndarray]:
+    """``(times, values)`` of a ``Scalars`` entity, sorted by ``timeline``."""
+    t = np.asarray(rows.times[timeline])
+    v = np.asarray([x[0] for x in rows.components["Scalars:scalars"]], dtype=np.float64)
+    order = np.argsort(t, kind="stable")
+    return t[order], v[order]
+
+
+# -- recording a plain dm_control environment ------------------------------------------------
+def step_record_from_env(env: Any, episode: int, timestep: Any = None, *, habit: bool = False,
+                         delta: float = float("nan"), predicted_arm: np.ndarray | None = None) -> StepRecord:
+    """A :class:`StepRecord` read from a ``suite`` environment's physics after a reset or a step."""
+    physics, task = env.physics, env.task
+    distance = physics.distance_to_target()
+    first = timestep is None or timestep.first()
+    return StepRecord(
+        episode=episode, step=task.step_count,
+        true_arm=np.concatenate([physics.end_effector(), physics.elbow()]),
+        joint_angles=physics.joint_angles(), link_lengths=physics.link_lengths(), target=physics.target(),
+        reward=float("nan") if first else float(timestep.reward), distance=distance, delta=delta, habit=habit,
+        predicted_arm=np.full(4, np.nan) if predicted_arm is None else _f64(predicted_arm),
+        vision=bool(timestep is None or timestep.observation["vision"][0] > 0),
+        reached=distance <= task.spec.zone_radius, done=not first and timestep.last(),
+    )
+
+
+def recording_for_env(path: str | Path, env: Any, config: dict[str, Any] | None = None, *,
+                      name: str = "rollout", delta_threshold: float = 1.0) -> Recording:
+    """A :class:`Recording` with the geometry of a ``suite`` environment's task."""
+    spec = env.task.spec
+    return Recording(path, config, name=name, origin=spec.origin, plane_size=spec.plane_size,
+                     zone_radius=spec.zone_radius, delta_threshold=delta_threshold)

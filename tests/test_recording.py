@@ -1,0 +1,142 @@
+"""Recordings read back from .rrd files: entity paths, one frame per step, physics vs motion function."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import imageio.v3 as iio
+import numpy as np
+import pytest
+
+import apac_mj  # noqa: F401  (sets MUJOCO_GL before mujoco loads)
+from apac_mj import recording as R
+from apac_mj import render, suite
+
+
+def _record_plain_rollout(path: Path, task: str, episodes: int, seed: int = 0, **task_kwargs) -> dict:
+    """Roll out random actions in a suite env, recording every step; return what was logged."""
+    env = suite.load("planar_arm", task, task_kwargs={"random": seed, **task_kwargs})
+    rng = np.random.default_rng(seed)
+    logged = {"habit": [], "steps": 0, "lengths": []}
+    with render.Renderer(env.physics) as ren, R.recording_for_env(path, env, {"task": task, "seeds": [seed]}) as rec:
+        for ep in range(episodes):
+            ts = env.reset()
+            first = R.step_record_from_env(env, ep, ts)
+            rec.start_episode(ep, first.target, first.link_lengths)
+            rec.log_step(first, render.encode_jpeg(ren.render()))
+            logged["habit"].append(False)
+            logged["steps"] += 1
+            while not ts.last():
+                habit = bool(rng.integers(2))
+                ts = env.step(rng.uniform(-40, 40, size=2))
+                step = R.step_record_from_env(env, ep, ts, habit=habit, delta=float(rng.normal()),
+                                              predicted_arm=first.true_arm + rng.normal(size=4))
+                rec.log_step(step, render.encode_jpeg(ren.render()))
+                logged["habit"].append(habit)
+                logged["lengths"].append(step.link_lengths)
+                logged["steps"] += 1
+    return logged
+
+
+@pytest.fixture(scope="module")
+def changing_target(tmp_path_factory) -> tuple[Path, dict]:
+    path = tmp_path_factory.mktemp("rec") / "rollout.rrd"
+    return path, _record_plain_rollout(path, "changing_target", episodes=2)
+
+
+def test_recording_holds_every_entity_path_and_one_frame_per_step(changing_target):
+    path, logged = changing_target
+    entities, props, blueprints = R.read_recording(path)
+    missing = [p for p in R.ENTITY_PATHS if p not in entities]
+    assert not missing, f"missing entity paths {missing}"
+    assert len(entities[R.RENDER].times["frame"]) == logged["steps"]
+    assert sorted(entities[R.RENDER].times["frame"]) == list(range(logged["steps"]))
+    assert blueprints == 1
+    assert props["task"] == ["changing_target"] and "git_commit" in props
+    blob = entities[R.RENDER].components["EncodedImage:blob"][0]
+    frame = iio.imread(bytes(blob[0]), extension=".jpg")
+    assert frame.shape == (*render.FRAME_SHAPE, 3)
+
+
+def test_kinematics_error_is_below_1e9_throughout(changing_target):
+    path, logged = changing_target
+    entities, _, _ = R.read_recording(path)
+    _, err = R.scalar_series(entities[R.KINEMATICS_ERROR])
+    assert len(err) == logged["steps"]
+    assert np.max(err) <= 1e-9
+
+
+def test_controller_series_matches_what_was_reported(changing_target):
+    path, logged = changing_target
+    entities, _, _ = R.read_recording(path)
+    _, controller = R.scalar_series(entities[R.CONTROLLER])
+    assert controller.tolist() == [R.HABIT if h else R.PLANNING for h in logged["habit"]]
+
+
+def test_episode_and_step_timelines(changing_target):
+    path, logged = changing_target
+    entities, _, _ = R.read_recording(path)
+    rows = entities[R.DISTANCE]
+    episodes = np.asarray(rows.times["episode"])
+    steps = np.asarray(rows.times["step"])
+    assert set(episodes.tolist()) == {0, 1}
+    assert steps[episodes == 0].min() == 0 and steps[episodes == 0].max() == 30
+    texts = [t[0] for t in entities[R.EVENTS].components["TextLog:text"]]
+    assert sum("starts: target" in t for t in texts) == 2
+    assert any(("time limit" in t) or ("target reached" in t) for t in texts)
+
+
+def test_occlusion_and_growing_arm_are_recorded(tmp_path):
+    path = tmp_path / "occluded.rrd"
+    logged = _record_plain_rollout(path, "changing_target_changing_kinematics_occluded", episodes=1,
+                                   growth_start_episode=0)
+    entities, _, _ = R.read_recording(path)
+    _, vision = R.scalar_series(entities[R.VISION])
+    assert vision[0] == 1.0 and np.all(vision[1:] == 0.0)
+    texts = [t[0] for t in entities[R.EVENTS].components["TextLog:text"]]
+    assert sum(t.startswith("occluded") for t in texts) == logged["steps"] - 1
+    _, l1 = R.scalar_series(entities[R.L1])
+    assert np.all(np.diff(l1) > 0), "the arm grows every step"
+    _, err = R.scalar_series(entities[R.KINEMATICS_ERROR])
+    assert np.max(err) <= 1e-9
+
+
+def test_distance_field_is_smallest_at_the_target():
+    field = R.distance_field((8.0, 20.0), (30.0, 30.0)).astype(float).sum(axis=2)
+    assert field.shape == (30 * R.FIELD_PX_PER_CM, 30 * R.FIELD_PX_PER_CM)
+    # viridis is darkest at 0 and the first contour band darkens it further: the darkest pixel is at the
+    # target (row = y, col = x).
+    r, c = np.unravel_index(np.argmin(field), field.shape)
+    assert abs(c / R.FIELD_PX_PER_CM - 8.0) < 1.0 and abs(r / R.FIELD_PX_PER_CM - 20.0) < 1.0
+
+
+def test_recording_rejects_a_wrong_suffix(tmp_path):
+    with pytest.raises(ValueError, match=r"\.rrd"):
+        R.Recording(tmp_path / "x.mp4")
+
+
+def test_renderer_failure_names_mujoco_gl(monkeypatch):
+    env = suite.load("planar_arm", "changing_target", task_kwargs={"random": 0})
+
+    def broken(*args, **kwargs):
+        raise render.mujoco.FatalError("gladLoadGL error")
+
+    monkeypatch.setattr(render.mujoco, "Renderer", broken)
+    with pytest.raises(RuntimeError, match="MUJOCO_GL"):
+        render.Renderer(env.physics)
+
+
+def test_encode_jpeg_rejects_non_rgb():
+    with pytest.raises(ValueError, match="uint8 RGB"):
+        render.encode_jpeg(np.zeros((4, 4), dtype=np.uint8))
+    with pytest.raises(ValueError, match="uint8 RGB"):
+        render.encode_jpeg(np.zeros((4, 4, 3), dtype=np.float32))
+
+
+@pytest.mark.parametrize("suffix", [".gif", ".mp4"])
+def test_write_video_writes_every_frame(tmp_path, suffix):
+    frames = [np.full((48, 64, 3), 40 * i, dtype=np.uint8) for i in range(4)]
+    out = tmp_path / f"v{suffix}"
+    render.write_video(out, frames, fps=5)
+    assert len(list(iio.imiter(out))) == 4
+    with pytest.raises(ValueError, match="mp4 or .gif"):
+        render.write_video(tmp_path / "v.avi", frames)
