@@ -1,0 +1,308 @@
+"""The planar_arm dm_control suite: servos, observations, reward, conditions, errors."""
+import numpy as np
+import pytest
+from absl.testing import absltest
+from dm_env import test_utils
+
+from apac_mj import suite
+from apac_mj.kinematics import motion_function
+from apac_mj.suite import planar_arm
+from apac_mj.suite.regions import region_stats
+
+TASKS = [task for _, task in suite.ALL_TASKS]
+
+
+def make(task="changing_target", seed=0, **task_kwargs):
+    return suite.load("planar_arm", task, task_kwargs={"random": seed, **task_kwargs})
+
+
+# -- dm_env conformance, one test class per task ---------------------------------
+def _conformance_class(task: str) -> type:
+    def make_object_under_test(self):
+        return make(task)
+
+    return type(f"TestDmEnv_{task}", (test_utils.EnvironmentTestMixin, absltest.TestCase),
+                {"make_object_under_test": make_object_under_test})
+
+
+for _task in TASKS:
+    globals()[f"TestDmEnv_{_task}"] = _conformance_class(_task)
+
+
+def test_all_tasks_listed():
+    assert len(TASKS) == 12
+    assert {"static_target", "changing_target_changing_kinematics_occluded"} <= set(TASKS)
+
+
+@pytest.mark.parametrize("task", TASKS)
+def test_same_seed_same_numbers(task):
+    """Same seed => identical observations and rewards over two full episodes; all finite."""
+    actions = np.random.default_rng(1).uniform(-40.0, 40.0, size=(70, 2))
+    runs = []
+    for _ in range(2):
+        env = make(task, seed=7)
+        ts, trace = env.reset(), []
+        for a in actions:
+            trace.append((np.concatenate(list(ts.observation.values())), ts.reward))
+            ts = env.step(a) if not ts.last() else env.reset()
+        runs.append(trace)
+    for (obs_a, r_a), (obs_b, r_b) in zip(*runs):
+        assert np.all(np.isfinite(obs_a))
+        np.testing.assert_array_equal(obs_a, obs_b)
+        assert r_a == r_b
+
+
+def test_specs_describe_observations_and_actions():
+    env = make()
+    obs_spec = env.observation_spec()
+    assert list(obs_spec) == ["end_effector", "elbow", "target", "vision"]
+    assert [s.shape for s in obs_spec.values()] == [(2,), (2,), (2,), (1,)]
+    spec = env.action_spec()
+    assert spec.shape == (2,)
+    np.testing.assert_array_equal(spec.minimum, -180.0)
+    np.testing.assert_array_equal(spec.maximum, 180.0)
+    ts = env.reset()
+    for name, value in ts.observation.items():
+        obs_spec[name].validate(value)
+
+
+# -- servos and kinematic actuation --------------------------------------------------
+@pytest.mark.parametrize("lengths", [(5.0, 8.0), (2.0, 3.0), (9.0, 14.0)])
+@pytest.mark.parametrize("start, action", [((0.0, 0.0), (180.0, 180.0)), ((180.0, 180.0), (-180.0, -180.0)),
+                                           ((0.0, 180.0), (180.0, -180.0))])
+def test_servo_settles_a_full_move_in_one_step(lengths, start, action):
+    env = make(link_lengths=lengths)
+    env.reset()
+    env.physics.set_joint_angles(*start)
+    env.step(np.array(action))
+    target = np.clip(np.add(start, action), 0.0, 180.0)
+    assert np.max(np.abs(env.physics.joint_angles() - target)) < 0.01
+    assert np.max(np.abs(env.physics.data.qvel)) < 1e-3
+
+
+def test_action_is_a_change_clipped_to_the_joint_range():
+    env = make(actuation="kinematic")
+    env.reset()  # start pose (0, 180)
+    env.step(np.array([30.0, 40.0]))  # elbow clipped at 180
+    np.testing.assert_allclose(env.physics.joint_angles(), [30.0, 180.0], atol=1e-12)
+    env.step(np.array([-50.0, -100.0]))  # shoulder clipped at 0
+    np.testing.assert_allclose(env.physics.joint_angles(), [0.0, 80.0], atol=1e-12)
+
+
+def test_kinematic_actuation_writes_angles_exactly():
+    env = make(actuation="kinematic")
+    env.reset()
+    angles = np.array([0.0, 180.0])
+    for action in np.random.default_rng(0).uniform(-60.0, 60.0, size=(25, 2)):
+        angles = np.clip(angles + action, 0.0, 180.0)
+        env.step(action)
+        np.testing.assert_allclose(env.physics.joint_angles(), angles, rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(env.physics.data.qvel, 0.0)
+
+
+def test_unknown_actuation_is_rejected():
+    with pytest.raises(ValueError, match="actuation"):
+        make(actuation="teleport")
+
+
+# -- observation, reward, termination ----------------------------------------------
+def test_start_pose_and_perfect_vision():
+    env = make()
+    ts = env.reset()
+    np.testing.assert_allclose(env.physics.joint_angles(), planar_arm.START_ANGLES)
+    end, elbow = motion_function(0.0, 180.0, 5.0, 8.0)
+    np.testing.assert_allclose(ts.observation["end_effector"], end, atol=1e-9)
+    np.testing.assert_allclose(ts.observation["elbow"], elbow, atol=1e-9)
+    ts = env.step(np.array([20.0, -20.0]))
+    np.testing.assert_array_equal(ts.observation["end_effector"], env.physics.end_effector())
+    np.testing.assert_array_equal(ts.observation["target"], env.physics.target())
+    assert ts.observation["vision"][0] == 1.0
+
+
+@pytest.mark.parametrize("task", [t for t in TASKS if t.endswith("occluded")])
+def test_occluded_vision_withholds_positions_after_first_step(task):
+    env = make(task)
+    ts = env.reset()
+    assert ts.observation["vision"][0] == 1.0
+    np.testing.assert_array_equal(ts.observation["target"], env.physics.target())
+    for action in np.random.default_rng(0).uniform(-30.0, 30.0, size=(5, 2)):
+        ts = env.step(action)
+        truth = {"end_effector": env.physics.end_effector(), "elbow": env.physics.elbow(),
+                 "target": env.physics.target()}
+        assert ts.observation["vision"][0] == 0.0
+        for name, value in truth.items():
+            assert not np.any(np.isclose(ts.observation[name], value)), name
+        if ts.last():
+            break
+
+
+def test_reward_is_minus_distance():
+    env = make()
+    env.reset()
+    for action in np.random.default_rng(2).uniform(-30.0, 30.0, size=(5, 2)):
+        ts = env.step(action)
+        assert ts.reward == pytest.approx(-np.linalg.norm(env.physics.end_effector() - env.physics.target()))
+
+
+def test_reaching_the_zone_terminates_with_discount_zero():
+    env = make()
+    target, _ = motion_function(90.0, 90.0, 5.0, 8.0)
+    env.task.set_target_override(target)
+    env.reset()
+    ts = env.step(np.array([90.0, -90.0]))  # (0, 180) -> (90, 90)
+    assert ts.last() and ts.discount == 0.0
+    assert -ts.reward <= 0.5
+
+
+def test_time_limit_after_30_steps_with_discount_one():
+    env = make()
+    env.task.set_target_override((25.0, 25.0))  # unreachable from a resting arm
+    env.reset()
+    for i in range(30):
+        ts = env.step(np.zeros(2))
+        assert ts.last() == (i == 29)
+    assert ts.discount == 1.0
+    assert env.reset().first()
+
+
+# -- target and kinematics conditions --------------------------------------------------
+def _episode_targets(env, n):
+    out = []
+    for _ in range(n):
+        env.reset()
+        out.append(env.physics.target())
+    return np.array(out)
+
+
+def test_static_target_is_kept_for_the_run_and_depends_on_seed():
+    targets = _episode_targets(make("static_target", seed=0), 4)
+    assert np.all(targets == targets[0])
+    other = _episode_targets(make("static_target", seed=1), 1)
+    assert not np.allclose(other[0], targets[0])
+
+
+def test_changing_target_is_new_each_episode_and_reachable():
+    env = make("changing_target")
+    targets = _episode_targets(env, 20)
+    assert len(np.unique(targets, axis=0)) == 20
+    dist = np.linalg.norm(targets - np.array([15.0, 15.0]), axis=1)
+    assert np.all(dist <= 13.0 + 1e-9)
+    assert np.all((targets >= 0) & (targets <= 30))
+
+
+def test_target_override_and_release():
+    env = make()
+    env.task.set_target_override((20.0, 21.0))
+    np.testing.assert_array_equal(_episode_targets(env, 2), [[20.0, 21.0]] * 2)
+    env.task.set_target_override(None)
+    assert not np.allclose(_episode_targets(env, 1)[0], [20.0, 21.0])
+
+
+def test_changing_kinematics_grows_each_step_after_the_start_episode():
+    env = make("changing_target_changing_kinematics", growth_start_episode=2)
+    for _ in range(2):  # episodes 0, 1: no growth
+        env.reset()
+        for _ in range(3):
+            env.step(np.zeros(2))
+        np.testing.assert_allclose(env.physics.link_lengths(), [5.0, 8.0])
+    env.reset()  # episode 2
+    for k in range(1, 6):
+        env.step(np.array([3.0, -3.0]))
+        np.testing.assert_allclose(env.physics.link_lengths(), [5.0 + 0.001 * k, 8.0 + 0.001 * k], atol=1e-12)
+        alpha, beta = env.physics.joint_angles()
+        end, _ = motion_function(alpha, beta, *env.physics.link_lengths())
+        np.testing.assert_allclose(env.physics.end_effector(), end, atol=1e-9)
+    env.reset()  # growth is kept across episodes
+    np.testing.assert_allclose(env.physics.link_lengths(), [5.005, 8.005], atol=1e-12)
+
+
+def test_static_kinematics_never_grow():
+    env = make("changing_target", growth_start_episode=0)
+    env.reset()
+    for _ in range(5):
+        env.step(np.ones(2))
+    np.testing.assert_allclose(env.physics.link_lengths(), [5.0, 8.0])
+
+
+def test_task_state_round_trip_reproduces_following_episodes():
+    env = make("changing_target_changing_kinematics", growth_start_episode=1)
+    for _ in range(2):
+        env.reset()
+        env.step(np.ones(2))
+    state = env.task.get_state()
+    expected = _episode_targets(env, 3)
+    fresh = make("changing_target_changing_kinematics", seed=99, growth_start_episode=1)
+    fresh.task.set_state(state)
+    np.testing.assert_array_equal(_episode_targets(fresh, 3), expected)
+    np.testing.assert_allclose(fresh.physics.link_lengths(), env.physics.link_lengths())
+
+
+# -- the generalization split -------------------------------------------------------------
+def test_test_region_is_one_third_of_the_reachable_area():
+    stats = region_stats(suite.load_spec("changing_target"))
+    assert stats.link_lengths == (5.0, 8.0)
+    assert abs(stats.test_area_fraction - 1 / 3) <= 0.02
+    assert 25 <= stats.grid_targets_in_test <= 45  # paper: "about 39"
+
+
+def test_all_task_files_share_the_split():
+    assert len({suite.load_spec(t).region.test_y_min for t in TASKS}) == 1
+
+
+@pytest.mark.parametrize("task", [t for t in TASKS if t.endswith("train_region")])
+def test_train_region_tasks_never_draw_test_targets(task):
+    env = make(task)
+    y_min = env.task.spec.region.test_y_min
+    ys = np.array([env.task.sample_target()[1] for _ in range(500)])
+    assert np.all(ys < y_min)
+
+
+def test_test_region_draws_only_test_targets():
+    env = make("changing_target", target_region="test")
+    y_min = env.task.spec.region.test_y_min
+    targets = _episode_targets(env, 50)
+    assert np.all(targets[:, 1] >= y_min)
+
+
+# -- bad input ------------------------------------------------------------------------------
+def test_unknown_task_lists_known_ones():
+    with pytest.raises(KeyError, match="unknown task 'reach_moon'.*static_target"):
+        suite.load("planar_arm", "reach_moon")
+
+
+def test_unknown_domain():
+    with pytest.raises(KeyError, match="unknown domain"):
+        suite.load("cartpole", "static_target")
+
+
+@pytest.mark.parametrize("lengths", [(0.0, 8.0), (5.0, -1.0), (float("nan"), 8.0), (5.0, float("inf"))])
+def test_bad_link_lengths_are_rejected(lengths):
+    with pytest.raises(suite.TaskSpecError, match="link_lengths"):
+        make(link_lengths=lengths)
+    env = make()
+    with pytest.raises(ValueError, match="link length"):
+        env.task.set_link_lengths(*lengths)
+
+
+@pytest.mark.parametrize("target", [(31.0, 10.0), (-0.1, 5.0), (5.0, float("nan")), (1.0, 2.0, 3.0)])
+def test_target_outside_the_plane_is_rejected(target):
+    env = make()
+    env.reset()
+    with pytest.raises(ValueError, match="target"):
+        env.task.set_target_override(target)
+    with pytest.raises(ValueError, match="target"):
+        env.physics.set_target(target)
+
+
+@pytest.mark.parametrize("action, problem", [([np.nan, 0.0], "finite"), ([0.0, np.inf], "finite"),
+                                             ([1.0, 2.0, 3.0], "shape"), ([[1.0, 2.0]], "shape")])
+def test_bad_actions_are_rejected(action, problem):
+    env = make()
+    env.reset()
+    with pytest.raises(ValueError, match=problem):
+        env.step(np.array(action))
+
+
+def test_unknown_override_is_rejected():
+    with pytest.raises(suite.TaskSpecError, match="unknown override"):
+        make(gravity=9.81)
