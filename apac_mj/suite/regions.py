@@ -9,6 +9,7 @@ of the paper's test targets (:func:`~apac_mj.kinematics.angle_grid`) fall in it.
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 
@@ -36,13 +37,23 @@ def reachable_cells(spec: TaskSpec, n_angles: int = 1200, cell: float = 0.05) ->
     both joint ranges; with the defaults neighbouring samples lie < ``cell`` apart
     for links up to ~15 cm, so the reachable set has no holes.
     """
+    return _reachable_cells(tuple(spec.link_lengths), tuple(spec.origin), tuple(spec.plane_size), n_angles, cell)
+
+
+@functools.lru_cache(maxsize=16)
+def _reachable_cells(lengths: tuple, origin: tuple, plane_size: tuple, n_angles: int, cell: float) -> np.ndarray:
     angles = np.linspace(0.0, 180.0, n_angles)
     alpha, beta = np.meshgrid(angles, angles, indexing="ij")
-    end, _ = motion_function(alpha.ravel(), beta.ravel(), *spec.link_lengths, spec.origin)
-    w, h = spec.plane_size
+    end, _ = motion_function(alpha.ravel(), beta.ravel(), *lengths, origin)
+    w, h = plane_size
     on_plane = (end[:, 0] >= 0) & (end[:, 0] <= w) & (end[:, 1] >= 0) & (end[:, 1] <= h)
-    idx = np.unique(np.floor(end[on_plane] / cell).astype(np.int64), axis=0)
-    return (idx + 0.5) * cell
+    shape = (int(np.ceil(w / cell)) + 1, int(np.ceil(h / cell)) + 1)
+    raster = np.zeros(shape, dtype=bool)
+    ix = np.floor(end[on_plane] / cell).astype(np.int64)
+    raster[ix[:, 0], ix[:, 1]] = True
+    cells = (np.argwhere(raster) + 0.5) * cell
+    cells.setflags(write=False)
+    return cells
 
 
 def region_stats(spec: TaskSpec) -> RegionStats:

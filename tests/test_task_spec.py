@@ -1,0 +1,107 @@
+"""Task files: every shipped file is valid, and malformed files fail naming the problem."""
+import pytest
+
+from apac_mj import paths
+from apac_mj.suite.task_spec import Region, TaskSpec, TaskSpecError, load_task, load_task_file, task_names
+
+GOOD = """\
+description = "a test condition"
+[target]
+mode = "changing"
+region = "train"
+zone_radius = 0.75
+[kinematics]
+mode = "changing"
+link_lengths = [4.0, 9]
+growth_per_step = 0.002
+growth_start_episode = 3
+[vision]
+mode = "occluded"
+[episode]
+steps = 12
+[plane]
+size = [40.0, 30.0]
+origin = [20.0, 15.0]
+[region]
+test_y_min = 21.5
+"""
+
+
+def write(tmp_path, text, name="cond"):
+    path = tmp_path / f"{name}.toml"
+    path.write_text(text)
+    return path
+
+
+def test_every_key_is_read(tmp_path):
+    spec = load_task_file(write(tmp_path, GOOD))
+    assert spec == TaskSpec(
+        name="cond", description="a test condition", target_mode="changing", target_region="train",
+        zone_radius=0.75, kinematics_mode="changing", link_lengths=(4.0, 9.0), growth_per_step=0.002,
+        growth_start_episode=3, vision="occluded", steps_per_episode=12, plane_size=(40.0, 30.0),
+        origin=(20.0, 15.0), region=Region(test_y_min=21.5))
+    assert spec.occluded
+
+
+def test_missing_keys_take_paper_defaults(tmp_path):
+    spec = load_task_file(write(tmp_path, ""))
+    assert (spec.link_lengths, spec.zone_radius, spec.steps_per_episode) == ((5.0, 8.0), 0.5, 30)
+    assert (spec.growth_per_step, spec.growth_start_episode, spec.origin) == (0.001, 100, (15.0, 15.0))
+
+
+def test_shipped_task_files():
+    names = task_names()
+    assert len(names) == 12
+    for name in names:
+        spec = load_task(name)
+        assert spec.link_lengths == (5.0, 8.0) and spec.steps_per_episode == 30 and spec.zone_radius == 0.5
+        assert spec.target_mode in name and spec.region.test_y_min == 22.3
+        assert (spec.kinematics_mode == "changing") == ("changing_kinematics" in name)
+        assert spec.occluded == name.endswith("occluded")
+        assert (spec.target_region == "train") == name.endswith("train_region")
+    assert paths.arm_xml_path().is_file()
+
+
+@pytest.mark.parametrize("text, problem", [
+    ("colour = 'red'", "unknown top-level key 'colour'"),
+    ("[target]\nspeed = 3", r"unknown key target.speed"),
+    ("[physics]\ngravity = 0", r"unknown section \[physics\]"),
+    ("[target]\nmode = 'wandering'", "target_mode must be one of"),
+    ("[target]\nregion = 'north'", "target_region must be one of"),
+    ("[target]\nzone_radius = -0.5", "zone_radius must be a positive"),
+    ("[target]\nzone_radius = 'big'", "target.zone_radius must be a finite number"),
+    ("[kinematics]\nlink_lengths = [5.0]", "kinematics.link_lengths must be a list of two numbers"),
+    ("[kinematics]\nlink_lengths = [0.0, 8.0]", r"link_lengths \(l1\) must be a positive"),
+    ("[kinematics]\nlink_lengths = [5.0, nan]", "kinematics.link_lengths must be a finite number"),
+    ("[kinematics]\ngrowth_per_step = -1e-3", "growth_per_step must be finite and >= 0"),
+    ("[kinematics]\ngrowth_start_episode = 1.5", "kinematics.growth_start_episode must be an integer"),
+    ("[kinematics]\ngrowth_start_episode = -2", "growth_start_episode must be >= 0"),
+    ("[vision]\nmode = 'blurry'", "vision must be one of"),
+    ("[episode]\nsteps = 0", "steps_per_episode must be >= 1"),
+    ("[episode]\nsteps = true", "episode.steps must be an integer"),
+    ("[plane]\norigin = [50.0, 15.0]", "origin .* lies outside the plane"),
+    ("[region]\ntest_y_min = 'top'", "region.test_y_min must be a finite number"),
+    ("[target\nmode = 'static'", "not valid TOML"),
+])
+def test_bad_file_names_the_problem(tmp_path, text, problem):
+    path = write(tmp_path, text)
+    with pytest.raises(TaskSpecError, match=problem) as info:
+        load_task_file(path)
+    assert str(path) in str(info.value)
+
+
+def test_unknown_task_name_lists_known(tmp_path):
+    write(tmp_path, "", "alpha")
+    write(tmp_path, "", "beta")
+    with pytest.raises(KeyError, match="unknown task 'gamma'; known tasks: alpha, beta"):
+        load_task("gamma", tmp_path)
+    assert load_task("beta", tmp_path).name == "beta"
+
+
+def test_replace_checks_overrides():
+    spec = load_task("changing_target")
+    assert spec.replace(zone_radius=1.0).zone_radius == 1.0
+    with pytest.raises(TaskSpecError, match="unknown override"):
+        spec.replace(colour="red")
+    with pytest.raises(TaskSpecError, match="vision must be one of"):
+        spec.replace(vision="x-ray")
