@@ -1,0 +1,191 @@
+"""VecEnv: E ``suite`` environments side by side, one per seed, with exact save/restore.
+
+Member ``k`` is ``suite.load(task, task_kwargs={"random": seeds[k], ...})``;
+members share nothing. :meth:`VecEnv.step` and :meth:`VecEnv.reset` touch only
+the members in a mask, so members run free (each its own episode sequence).
+:meth:`VecEnv.get_state` captures everything needed to continue bit-exactly
+mid-episode: MuJoCo's integration state (``mj_getState`` with
+``mjSTATE_INTEGRATION``: positions, velocities, servo set-points, time,
+warm-start), the model fields changed at run time (link lengths, target,
+origin, zone radius), the task's state (episode, lengths, static target,
+RandomState) and step count, and ``control.Environment``'s own step counter
+and reset flag. All of it is plain numbers, lists and tensors, so a checkpoint
+holding it loads with ``torch.load(weights_only=True)``.
+"""
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Sequence
+
+import mujoco
+import numpy as np
+import torch
+
+from apac_mj import suite
+from apac_mj.suite.task_spec import TaskSpec
+
+#: The MuJoCo state captured for an exact resume.
+_SIG = int(mujoco.mjtState.mjSTATE_INTEGRATION)
+
+
+@dataclasses.dataclass
+class Observation:
+    """Member-batched view of the last time step of every member (cm).
+
+    Only the members stepped or reset by the call that returned it are fresh;
+    the others keep their previous values. Positions read zero where
+    ``vision`` is False (occluded vision).
+    """
+
+    arm: np.ndarray        # [E, 4] observed [end_x, end_y, elbow_x, elbow_y]
+    target: np.ndarray     # [E, 2] observed target
+    vision: np.ndarray     # [E] bool: the positions above were seen
+    reward: np.ndarray     # [E] the environment's reward (-distance); 0 after a reset
+    last: np.ndarray       # [E] bool: the episode ended (target reached or time limit)
+    reached: np.ndarray    # [E] bool: the episode ended inside the target zone
+
+
+class VecEnv:
+    """E environments of one task (one per seed), stepped under a member mask."""
+
+    def __init__(self, task: str, seeds: Sequence[int], actuation: str = "servo",
+                 overrides: dict[str, Any] | None = None) -> None:
+        seeds = [int(s) for s in seeds]
+        if not seeds:
+            raise ValueError("VecEnv needs at least one seed")
+        if len(set(seeds)) != len(seeds):
+            raise ValueError(f"seeds must be distinct, got {seeds}")
+        self.task, self.seeds, self.actuation = task, seeds, actuation
+        self.overrides = dict(overrides or {})
+        self.envs = [suite.load("planar_arm", task, task_kwargs={"random": s, "actuation": actuation,
+                                                                 **self.overrides}) for s in seeds]
+        self.E = len(seeds)
+        self.spec: TaskSpec = self.envs[0].task.spec
+        self.obs = Observation(arm=np.zeros((self.E, 4)), target=np.zeros((self.E, 2)),
+                               vision=np.zeros(self.E, dtype=bool), reward=np.zeros(self.E),
+                               last=np.zeros(self.E, dtype=bool), reached=np.zeros(self.E, dtype=bool))
+
+    # -- stepping -----------------------------------------------------------------
+    def _mask(self, mask: Sequence[bool] | np.ndarray | None) -> np.ndarray:
+        m = np.ones(self.E, dtype=bool) if mask is None else np.asarray(mask, dtype=bool)
+        if m.shape != (self.E,):
+            raise ValueError(f"mask must have shape ({self.E},), got {m.shape}")
+        return m
+
+    def _record(self, k: int, ts) -> None:
+        o = ts.observation
+        self.obs.arm[k, :2], self.obs.arm[k, 2:] = o["end_effector"], o["elbow"]
+        self.obs.target[k] = o["target"]
+        self.obs.vision[k] = bool(o["vision"][0] > 0.5)
+        self.obs.reward[k] = 0.0 if ts.reward is None else ts.reward
+        self.obs.last[k] = ts.last()
+        self.obs.reached[k] = ts.last() and ts.discount == 0.0
+
+    def reset(self, mask: Sequence[bool] | np.ndarray | None = None) -> Observation:
+        """Start a new episode for the members in ``mask`` (all if None)."""
+        for k in np.flatnonzero(self._mask(mask)):
+            self._record(k, self.envs[k].reset())
+        return self.obs
+
+    def step(self, actions: np.ndarray, mask: Sequence[bool] | np.ndarray | None = None) -> Observation:
+        """Apply ``actions`` ``[E, 2]`` (degrees) to the members in ``mask``; the others stay still."""
+        actions = np.asarray(actions, dtype=np.float64)
+        if actions.shape != (self.E, 2):
+            raise ValueError(f"actions must have shape ({self.E}, 2), got {actions.shape}")
+        for k in np.flatnonzero(self._mask(mask)):
+            if self.envs[k]._reset_next_step:
+                raise RuntimeError(f"member {k} (seed {self.seeds[k]}) stepped after its episode ended; "
+                                   "reset it first")
+            self._record(k, self.envs[k].step(actions[k]))
+        return self.obs
+
+    # -- run-time controls and true state (for metrics, evaluation and recordings) ---
+    def physics(self, k: int):
+        return self.envs[k].physics
+
+    def reach_task(self, k: int):
+        return self.envs[k].task
+
+    def set_target_override(self, targets: np.ndarray | None, mask: Sequence[bool] | np.ndarray | None = None) -> None:
+        """Targets ``[E, 2]`` for the next episodes of the members in ``mask`` (None: sample again)."""
+        for k in np.flatnonzero(self._mask(mask)):
+            self.envs[k].task.set_target_override(None if targets is None else targets[k])
+
+    def set_link_lengths(self, lengths: np.ndarray) -> None:
+        """Link lengths ``[E, 2]`` used from each member's next reset on."""
+        for k in range(self.E):
+            self.envs[k].task.set_link_lengths(float(lengths[k, 0]), float(lengths[k, 1]))
+
+    def true_arm(self) -> np.ndarray:
+        """``[E, 4]`` the arm as MuJoCo has it: [end_x, end_y, elbow_x, elbow_y]."""
+        return np.stack([np.concatenate([e.physics.end_effector(), e.physics.elbow()]) for e in self.envs])
+
+    def targets(self) -> np.ndarray:
+        return np.stack([e.physics.target() for e in self.envs])
+
+    def distances(self) -> np.ndarray:
+        return np.array([e.physics.distance_to_target() for e in self.envs])
+
+    def joint_angles(self) -> np.ndarray:
+        return np.stack([e.physics.joint_angles() for e in self.envs])
+
+    def link_lengths(self) -> np.ndarray:
+        """``[E, 2]`` the lengths the physics has now (they grow under changing kinematics)."""
+        return np.stack([e.physics.link_lengths() for e in self.envs])
+
+    def task_link_lengths(self) -> np.ndarray:
+        """``[E, 2]`` the lengths each task will use at its next reset."""
+        return np.stack([e.task.link_lengths for e in self.envs])
+
+    # -- exact save / restore ----------------------------------------------------------
+    def get_state(self) -> dict[str, Any]:
+        """Everything that evolves, as tensors and lists (``weights_only``-safe)."""
+        return {"seeds": list(self.seeds), "members": [_member_state(e) for e in self.envs],
+                "obs": {f.name: torch.from_numpy(getattr(self.obs, f.name).copy())
+                        for f in dataclasses.fields(Observation)}}
+
+    def set_state(self, state: dict[str, Any]) -> None:
+        if list(state["seeds"]) != self.seeds:
+            raise ValueError(f"environment state is for seeds {list(state['seeds'])}, this VecEnv has {self.seeds}")
+        for env, s in zip(self.envs, state["members"]):
+            _set_member_state(env, s)
+        for name, t in state["obs"].items():
+            getattr(self.obs, name)[...] = t.numpy()
+
+
+def _member_state(env) -> dict[str, Any]:
+    p, task = env.physics, env.task
+    ts = task.get_state()
+    kind, keys, pos, has_gauss, gauss = ts["random"]
+    return {
+        "mj_state": torch.from_numpy(p.get_state(sig=_SIG).copy()),
+        "link_lengths": torch.from_numpy(p.link_lengths()), "target": torch.from_numpy(p.target()),
+        "origin": torch.from_numpy(p.origin()), "zone_radius": float(p.model.site_size[p.ids.zone_site, 0]),
+        "task": {"episode": int(ts["episode"]), "lengths": torch.from_numpy(ts["lengths"].copy()),
+                 "static_target": None if ts["static_target"] is None else torch.from_numpy(ts["static_target"]),
+                 "random": [str(kind), torch.from_numpy(keys.astype(np.int64)), int(pos), int(has_gauss),
+                            float(gauss)],
+                 "target_override": None if task._target_override is None
+                 else torch.from_numpy(task._target_override.copy()),
+                 "step_count": int(task.step_count)},
+        "env_step_count": int(env._step_count), "reset_next_step": bool(env._reset_next_step),
+    }
+
+
+def _set_member_state(env, s: dict[str, Any]) -> None:
+    p, task, t = env.physics, env.task, s["task"]
+    kind, keys, pos, has_gauss, gauss = t["random"]
+    task.set_state({"episode": t["episode"], "lengths": t["lengths"].numpy().astype(np.float64),
+                    "static_target": None if t["static_target"] is None else t["static_target"].numpy(),
+                    "random": (kind, keys.numpy().astype(np.uint32), pos, has_gauss, gauss)})
+    task.set_target_override(None if t["target_override"] is None else t["target_override"].numpy())
+    task.step_count = int(t["step_count"])
+    p.plane_size = task.spec.plane_size
+    p.set_origin(s["origin"].numpy())
+    p.set_zone_radius(float(s["zone_radius"]))
+    p.set_link_lengths(*(float(v) for v in s["link_lengths"]))
+    p.set_target(s["target"].numpy())
+    p.set_state(s["mj_state"].numpy(), sig=_SIG)
+    mujoco.mj_forward(p.model.ptr, p.data.ptr)
+    env._step_count = int(s["env_step_count"])
+    env._reset_next_step = bool(s["reset_next_step"])
