@@ -13,8 +13,11 @@ _REPO = Path(__file__).resolve().parent.parent
 
 
 def _data_dir(name: str) -> Path:
+    # A source checkout has pyproject.toml next to the folder; an installed
+    # package's parent is site-packages, where an unrelated top-level
+    # "assets"/"tasks" folder must not be mistaken for ours.
     local = _REPO / name
-    if local.is_dir():
+    if (_REPO / "pyproject.toml").is_file() and local.is_dir():
         return local
     return Path(str(importlib.resources.files(f"apac_mj.{name}")))
 
