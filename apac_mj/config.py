@@ -68,8 +68,15 @@ class AgentConfig:
     babbling_scale: float = 180.0
 
     # -- inputs ---------------------------------------------------------------
-    #: Networks see raw cm and degrees as in the paper when False.
+    #: Networks see raw cm and degrees as in the paper when False. When True,
+    #: positions enter as (x - plane_scale/2) / (plane_scale/2) and actions
+    #: entering the critic / forward model as a / action_scale (outputs unchanged).
     normalize_inputs: bool = False
+
+    # -- open choices of the DDPG update (docs/agent.md) ----------------------
+    #: Proposals from the target actor (the paper's text says so) instead of
+    #: the online actor (standard DDPG, default).
+    act_with_target_actor: bool = False
 
     def __post_init__(self) -> None:
         if self.agent not in AGENTS:

@@ -1,0 +1,217 @@
+"""Agent: the APAC networks for E independent seeds, their proposals, delta and one update.
+
+Habit system: DDPG actor + critic with target networks (soft updates, tau).
+Planning system: forward model (next [end, elbow] from [end, elbow] + action)
+and inverse model (action from [end_t, elbow_t, end_{t+1}], trained in
+hindsight; at action time the target replaces end_{t+1}).
+
+Every member k has its own networks, optimizer state, replay memory, OU noise
+and random streams, all derived from ``seeds[k]``; member k of an ensemble
+behaves exactly like the same seed trained alone (E = 1). See docs/agent.md.
+"""
+from __future__ import annotations
+
+import contextlib
+import copy
+from typing import Sequence
+
+import numpy as np
+import torch
+from torch import nn
+
+from apac_mj.buffer import EnsembleReplay
+from apac_mj.config import AgentConfig
+from apac_mj.networks import build_actor, build_critic, build_forward_model, build_inverse_model
+from apac_mj.noise import OUNoise
+from apac_mj.optim import EnsembleAdam
+
+PRECISIONS = ("fp32", "bf16")
+NETWORKS = ("actor", "critic", "forward_model", "inverse_model", "target_actor", "target_critic")
+LOSSES = ("critic", "actor", "forward", "inverse")
+
+
+def member_generators(seed: int) -> tuple[torch.Generator, torch.Generator, torch.Generator]:
+    """Three independent CPU generators (init, replay, noise) derived from one seed."""
+    if not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seeds must be non-negative integers, got {seed!r}")
+    states = np.random.SeedSequence(int(seed)).generate_state(3, dtype=np.uint64)
+    return tuple(torch.Generator().manual_seed(int(s) & (2**63 - 1)) for s in states)  # type: ignore
+
+
+class Agent:
+    """E independent APAC agents; see docs/architecture.md for the contract."""
+
+    def __init__(self, cfg: AgentConfig, seeds: Sequence[int], device: str = "cpu",
+                 precision: str = "fp32") -> None:
+        if len(seeds) < 1:
+            raise ValueError("Agent needs at least one seed")
+        if precision not in PRECISIONS:
+            raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}")
+        self.device = torch.device(device)
+        if self.device.type == "cuda" and not torch.cuda.is_available():
+            raise ValueError("device 'cuda' requested but CUDA is not available")
+        torch.set_flush_denormal(True)
+        self.cfg, self.seeds, self.precision = cfg, [int(s) for s in seeds], precision
+        self.E = len(self.seeds)
+        gens = [member_generators(s) for s in self.seeds]
+        init = [g[0] for g in gens]
+        self.actor = build_actor(cfg.actor_hidden, cfg.action_scale, init).to(self.device)
+        self.critic = build_critic(cfg.critic_hidden, init).to(self.device)
+        self.forward_model = build_forward_model(cfg.forward_hidden, cfg.plane_scale, init).to(self.device)
+        self.inverse_model = build_inverse_model(cfg.inverse_hidden, cfg.action_scale, init).to(self.device)
+        self.target_actor = _frozen_copy(self.actor)
+        self.target_critic = _frozen_copy(self.critic)
+        self.optimizer = EnsembleAdam(
+            [(list(self.critic.parameters()), cfg.critic_lr), (list(self.actor.parameters()), cfg.actor_lr),
+             (list(self.forward_model.parameters()), cfg.forward_lr),
+             (list(self.inverse_model.parameters()), cfg.inverse_lr)],
+            weight_decay=cfg.weight_decay)
+        self.replay = EnsembleReplay([g[1] for g in gens], cfg.replay_size, device=self.device)
+        self.noise = OUNoise([g[2] for g in gens], theta=cfg.ou_theta, sigma=cfg.ou_sigma, device=self.device)
+        self._soft_pairs = [(t.detach(), o.detach()) for net, tnet in
+                            ((self.actor, self.target_actor), (self.critic, self.target_critic))
+                            for t, o in zip(tnet.parameters(), net.parameters())]
+        self._soft_views = [(t.unbind(0), o.unbind(0)) for t, o in self._soft_pairs]
+
+    # -- inputs ----------------------------------------------------------------
+    def _pos(self, x: torch.Tensor) -> torch.Tensor:
+        """Network input for positions (cm); identity unless ``normalize_inputs``."""
+        if not self.cfg.normalize_inputs:
+            return x
+        half = self.cfg.plane_scale / 2
+        return (x - half) / half
+
+    def _act(self, a: torch.Tensor) -> torch.Tensor:
+        """Network input for actions (degrees); identity unless ``normalize_inputs``."""
+        return a / self.cfg.action_scale if self.cfg.normalize_inputs else a
+
+    def _autocast(self) -> contextlib.AbstractContextManager:
+        if self.precision == "bf16":
+            return torch.autocast(self.device.type, dtype=torch.bfloat16)
+        return contextlib.nullcontext()
+
+    def _check(self, name: str, x: torch.Tensor, dim: int) -> torch.Tensor:
+        x = torch.as_tensor(x, dtype=torch.float32, device=self.device)
+        if tuple(x.shape) != (self.E, dim):
+            raise ValueError(f"{name} must have shape ({self.E}, {dim}), got {tuple(x.shape)}")
+        return x
+
+    # -- proposals -------------------------------------------------------------
+    @torch.no_grad()
+    def actor_action(self, state: torch.Tensor) -> torch.Tensor:
+        """Habit proposal ``pi(s)``: ``[E,6] -> [E,2]`` degrees (no noise)."""
+        actor = self.target_actor if self.cfg.act_with_target_actor else self.actor
+        return actor(self._pos(self._check("state", state, 6))[:, None])[:, 0]
+
+    @torch.no_grad()
+    def inverse_action(self, state: torch.Tensor) -> torch.Tensor:
+        """Planning proposal: ``[end, elbow, target]`` ``[E,6] -> [E,2]`` degrees (no noise)."""
+        return self.inverse_model(self._pos(self._check("state", state, 6))[:, None])[:, 0]
+
+    @torch.no_grad()
+    def predict_arm(self, arm: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        """Forward model: ``[end, elbow]`` ``[E,4]`` + action ``[E,2]`` -> next ``[end, elbow]`` ``[E,4]``."""
+        x = torch.cat([self._pos(self._check("arm", arm, 4)), self._act(self._check("action", action, 2))], -1)
+        return self.forward_model(x[:, None])[:, 0]
+
+    @torch.no_grad()
+    def td_error(self, s: torch.Tensor, a: torch.Tensor, r: torch.Tensor, s2: torch.Tensor,
+                 done: torch.Tensor) -> torch.Tensor:
+        """``delta = r + gamma (1 - done) Q'(s2, pi'(s2)) - Q(s, a)`` per member: ``[E]``."""
+        s, s2 = self._check("s", s, 6)[:, None], self._check("s2", s2, 6)[:, None]
+        a = self._check("a", a, 2)[:, None]
+        r, done = self._check("r", torch.as_tensor(r)[:, None], 1), self._check("done", torch.as_tensor(done)[:, None], 1)
+        y = self._target(r, s2, done)
+        return (y - self.critic(self._pos(s), self._act(a)))[:, 0]
+
+    def _target(self, r: torch.Tensor, s2: torch.Tensor, done: torch.Tensor) -> torch.Tensor:
+        """TD target ``r + gamma (1 - done) Q'(s2, pi'(s2))``; ``[E,B]`` (s2 raw cm)."""
+        x2 = self._pos(s2)
+        q2 = self.target_critic(x2, self._act(self.target_actor(x2))).float()
+        return r + self.cfg.gamma * (1.0 - done) * q2
+
+    # -- learning ----------------------------------------------------------------
+    def update(self, active: torch.Tensor | Sequence[bool]) -> dict[str, torch.Tensor]:
+        """One update of critic, actor, forward and inverse model for members that are
+        ``active`` and hold at least one transition; soft target update for them.
+        Returns per-member losses ``[E]`` (NaN for members not updated)."""
+        act = torch.as_tensor(active).cpu().bool().tolist()
+        if len(act) != self.E:
+            raise ValueError(f"active must have {self.E} entries, got {len(act)}")
+        members = [k for k in range(self.E) if act[k] and self.replay.count[k] >= 1]
+        nan = torch.full((self.E,), float("nan"), device=self.device)
+        if not members:
+            return {name: nan.clone() for name in LOSSES}
+        batch = self.replay.sample(self.cfg.batch_size, members)
+        with self._autocast():
+            losses = self._losses(batch)
+        params = [list(net.parameters()) for net in
+                  (self.critic, self.actor, self.forward_model, self.inverse_model)]
+        flat = [p for ps in params for p in ps]
+        weight = torch.zeros(self.E, device=self.device)
+        weight[members] = 1.0
+        total = sum((loss * weight).sum() for loss in losses.values())
+        grads = torch.autograd.grad(total, flat)
+        it = iter(grads)
+        self.optimizer.step([[next(it) for _ in ps] for ps in params], members)
+        self._soft_update(members)
+        keep = weight.bool()
+        return {name: torch.where(keep, loss.detach().float(), nan) for name, loss in losses.items()}
+
+    def _losses(self, b: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        """Per-member losses ``[E]`` on a minibatch ``[E,B,...]``."""
+        s, a, s2 = b["state"], b["action"], b["next_state"]
+        with torch.no_grad():
+            y = self._target(b["reward"], s2, b["done"])
+        x = self._pos(s)
+        features = self.critic.features(x)
+        q = self.critic.head(features, self._act(a)).float()
+        # Actor: gradient of Q(s, pi(s)) through the critic's (pre-update) weights, not into them.
+        q_pi = self.critic.head(features.detach(), self._act(self.actor(x)), detach=True).float()
+        arm_next = self.forward_model(torch.cat([x[..., :4], self._act(a)], -1)).float()
+        a_inv = self.inverse_model(torch.cat([x[..., :4], self._pos(s2[..., :2])], -1)).float()
+        return {"critic": (y - q).pow(2).mean(1),
+                "actor": -q_pi.mean(1),
+                "forward": (arm_next - s2[..., :4]).pow(2).mean((1, 2)),
+                "inverse": (a_inv - a).pow(2).mean((1, 2))}
+
+    @torch.no_grad()
+    def _soft_update(self, members: list[int]) -> None:
+        """``theta' <- tau theta + (1 - tau) theta'`` for the target actor and critic of ``members``."""
+        tau = self.cfg.tau
+        if len(members) == self.E:
+            torch._foreach_lerp_([t for t, _ in self._soft_pairs], [o for _, o in self._soft_pairs], tau)
+            return
+        torch._foreach_lerp_([tv[k] for tv, _ in self._soft_views for k in members],
+                             [ov[k] for _, ov in self._soft_views for k in members], tau)
+
+    # -- persistence -------------------------------------------------------------
+    def state_dict(self) -> dict:
+        """Everything needed to continue bit-exactly; only tensors, lists, dicts, numbers, strings."""
+        return {"seeds": list(self.seeds), "precision": self.precision,
+                "networks": {n: {k: v.detach().clone() for k, v in getattr(self, n).state_dict().items()}
+                             for n in NETWORKS},
+                "optimizer": self.optimizer.state_dict(), "replay": self.replay.state_dict(),
+                "noise": self.noise.state_dict()}
+
+    def load_state_dict(self, d: dict) -> None:
+        if list(d["seeds"]) != self.seeds:
+            raise ValueError(f"state is for seeds {list(d['seeds'])}, this agent has {self.seeds}")
+        with torch.no_grad():
+            for n in NETWORKS:
+                net = getattr(self, n)
+                for k, v in net.state_dict().items():
+                    src = d["networks"][n][k]
+                    if src.shape != v.shape:
+                        raise ValueError(f"{n}.{k}: shape {tuple(src.shape)} != {tuple(v.shape)}")
+                    v.copy_(src)
+        self.optimizer.load_state_dict(d["optimizer"])
+        self.replay.load_state_dict(d["replay"])
+        self.noise.load_state_dict(d["noise"])
+
+
+def _frozen_copy(net: nn.Module) -> nn.Module:
+    target = copy.deepcopy(net)
+    for p in target.parameters():
+        p.requires_grad_(False)
+    return target

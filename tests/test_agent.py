@@ -1,0 +1,202 @@
+"""Agent: ensemble == single seeds, masking, delta, soft updates, persistence, precision."""
+from __future__ import annotations
+
+import io
+
+import pytest
+import torch
+
+from apac_mj.agent import LOSSES, NETWORKS, Agent
+from apac_mj.config import AgentConfig
+
+SMALL = dict(actor_hidden=(24, 16), critic_hidden=(24, 16), forward_hidden=(24, 16),
+             inverse_hidden=(24, 16), replay_size=12, batch_size=8)
+
+
+def small_cfg(**kw) -> AgentConfig:
+    return AgentConfig(**{**SMALL, **kw})
+
+
+def transitions(E: int, n: int, seed: int = 0) -> list[tuple[torch.Tensor, ...]]:
+    """n random transitions per member (raw cm / degrees)."""
+    g = torch.Generator().manual_seed(seed)
+    out = []
+    for _ in range(n):
+        s, s2 = torch.rand(E, 6, generator=g) * 30, torch.rand(E, 6, generator=g) * 30
+        a = (torch.rand(E, 2, generator=g) - 0.5) * 360
+        out.append((s, a, -torch.rand(E, generator=g), s2, (torch.rand(E, generator=g) < 0.2).float()))
+    return out
+
+
+def params_of(agent: Agent, k: int) -> list[torch.Tensor]:
+    return [p.detach()[k] for n in NETWORKS for p in getattr(agent, n).parameters()]
+
+
+def test_member_of_ensemble_equals_seed_alone():
+    seeds, steps = [7, 8, 9, 10], 6
+    data = transitions(4, steps)
+    active = [[True, True, k != 2, True] for k in range(steps)]
+    big = Agent(small_cfg(), seeds)
+    singles = [Agent(small_cfg(), [s]) for s in seeds]
+    for t, (s, a, r, s2, d) in enumerate(data):
+        big.replay.add(s, a, r, s2, d, [True] * 4)
+        losses = big.update(torch.tensor(active[t]))
+        for k, one in enumerate(singles):
+            one.replay.add(s[k:k + 1], a[k:k + 1], r[k:k + 1], s2[k:k + 1], d[k:k + 1], [True])
+            one_losses = one.update(torch.tensor([active[t][k]]))
+            for name in LOSSES:
+                torch.testing.assert_close(losses[name][k], one_losses[name][0], rtol=1e-5, atol=1e-6,
+                                           equal_nan=True)
+    noise = big.noise.sample()
+    for k, one in enumerate(singles):
+        for p, q in zip(params_of(big, k), params_of(one, 0)):
+            torch.testing.assert_close(p, q, rtol=0, atol=1e-6)
+        torch.testing.assert_close(noise[k], one.noise.sample()[0], rtol=0, atol=0)
+
+
+def test_inactive_members_untouched():
+    agent = Agent(small_cfg(), [0, 1, 2])
+    for s, a, r, s2, d in transitions(3, 4):
+        agent.replay.add(s, a, r, s2, d, [True] * 3)
+        agent.update([True] * 3)
+    before = [t.clone() for t in params_of(agent, 1)]
+    moments = [t[1].clone() for ts in agent.optimizer.exp_avg + agent.optimizer.exp_avg_sq for t in ts]
+    others = [t.clone() for t in params_of(agent, 0)]
+    losses = agent.update(torch.tensor([True, False, True]))
+    assert torch.isnan(losses["critic"][1]) and not torch.isnan(losses["critic"][0])
+    assert all(torch.equal(b, a) for b, a in zip(before, params_of(agent, 1)))
+    after = [t[1] for ts in agent.optimizer.exp_avg + agent.optimizer.exp_avg_sq for t in ts]
+    assert all(torch.equal(b, a) for b, a in zip(moments, after))
+    assert not all(torch.equal(b, a) for b, a in zip(others, params_of(agent, 0)))
+
+
+def test_member_without_samples_is_skipped():
+    agent = Agent(small_cfg(), [0, 1])
+    s, a, r, s2, d = transitions(2, 1)[0]
+    agent.replay.add(s, a, r, s2, d, [True, False])
+    losses = agent.update([True, True])
+    assert not torch.isnan(losses["actor"][0]) and torch.isnan(losses["actor"][1])
+    assert agent.optimizer.steps.tolist() == [1.0, 0.0]
+
+
+def test_td_error_matches_hand_computation():
+    cfg = small_cfg(gamma=0.9)
+    agent = Agent(cfg, [3, 4])
+    s, a, r, s2, _ = transitions(2, 1)[0]
+    done = torch.tensor([0.0, 1.0])
+    delta = agent.td_error(s, a, r, s2, done)
+    for k in range(2):
+        def mlp(net, x):
+            for i, layer in enumerate(net.layers):
+                x = x @ layer.weight[k].detach() + layer.bias[k, 0].detach()
+                x = torch.relu(x) if i < len(net.layers) - 1 else torch.tanh(x) * 180
+            return x
+
+        def q(critic, x, act):
+            h = torch.relu(x @ critic.l1.weight[k] + critic.l1.bias[k, 0])
+            h = torch.cat([h @ critic.l2_state.weight[k] + critic.l2_state.bias[k, 0],
+                           act @ critic.l2_action.weight[k] + critic.l2_action.bias[k, 0]])
+            return (torch.relu(h) @ critic.out.weight[k] + critic.out.bias[k, 0]).squeeze().detach()
+        bootstrap = q(agent.target_critic, s2[k], mlp(agent.target_actor, s2[k]))
+        expected = r[k] + 0.9 * (1 - done[k]) * bootstrap - q(agent.critic, s[k], a[k])
+        torch.testing.assert_close(delta[k], expected, rtol=1e-5, atol=1e-5)
+    assert delta.shape == (2,)
+
+
+def test_done_zeroes_bootstrap():
+    agent = Agent(small_cfg(), [0])
+    s, a, r, s2, _ = transitions(1, 1)[0]
+    one = torch.ones(1)
+    d1 = agent.td_error(s, a, r, s2, one)
+    d2 = agent.td_error(s, a, r, s2 + 5.0, one)
+    torch.testing.assert_close(d1, d2)
+
+
+def test_soft_update_with_tau():
+    agent = Agent(small_cfg(tau=0.1), [0, 1])
+    old = [p.detach().clone() for p in agent.target_actor.parameters()]
+    s, a, r, s2, d = transitions(2, 1)[0]
+    agent.replay.add(s, a, r, s2, d, [True, True])
+    agent.update([False, True])
+    for o, t, p in zip(old, agent.target_actor.parameters(), agent.actor.parameters()):
+        assert torch.equal(t[0], o[0])
+        torch.testing.assert_close(t[1], 0.9 * o[1] + 0.1 * p.detach()[1], rtol=1e-6, atol=1e-7)
+
+
+def test_state_dict_round_trip_reproduces_next_update():
+    agent = Agent(small_cfg(), [5, 6])
+    data = transitions(2, 5)
+    for s, a, r, s2, d in data[:4]:
+        agent.replay.add(s, a, r, s2, d, [True, True])
+        agent.update([True, True])
+        agent.noise.sample()
+    buf = io.BytesIO()
+    torch.save(agent.state_dict(), buf)
+    buf.seek(0)
+    clone = Agent(small_cfg(), [5, 6])
+    clone.load_state_dict(torch.load(buf, weights_only=True))
+    for ag in (agent, clone):
+        ag.replay.add(*data[4], [True, True])
+    la, lb = agent.update([True, True]), clone.update([True, True])
+    for name in LOSSES:
+        assert torch.equal(la[name], lb[name])
+    assert all(torch.equal(p, q) for p, q in zip(params_of(agent, 1), params_of(clone, 1)))
+    assert torch.equal(agent.noise.sample(), clone.noise.sample())
+    with pytest.raises(ValueError, match="seeds"):
+        Agent(small_cfg(), [1, 2]).load_state_dict(agent.state_dict())
+
+
+def test_bf16_update_close_to_fp32():
+    cfg = AgentConfig(replay_size=50, batch_size=64)
+    agents = [Agent(cfg, [0, 1], precision=p) for p in ("fp32", "bf16")]
+    data = transitions(2, 3)
+    for ag in agents:
+        for s, a, r, s2, d in data:
+            ag.replay.add(s, a, r, s2, d, [True, True])
+        losses = [ag.update([True, True]) for _ in range(2)]
+        ag.losses = losses[-1]
+    for name in LOSSES:
+        ref, got = agents[0].losses[name], agents[1].losses[name]
+        assert torch.isfinite(got).all()
+        torch.testing.assert_close(got, ref, rtol=0.05, atol=0.05)
+
+
+def test_bad_inputs_raise():
+    with pytest.raises(ValueError, match="precision"):
+        Agent(small_cfg(), [0], precision="fp16")
+    with pytest.raises(ValueError, match="seeds"):
+        Agent(small_cfg(), [-1])
+    agent = Agent(small_cfg(), [0, 1])
+    with pytest.raises(ValueError, match="state must have shape"):
+        agent.actor_action(torch.zeros(3, 6))
+    with pytest.raises(ValueError, match="active"):
+        agent.update([True])
+
+
+def test_proposals_shapes_and_ranges():
+    agent = Agent(small_cfg(), [0, 1])
+    s = torch.rand(2, 6) * 30
+    assert agent.actor_action(s).shape == (2, 2) and agent.inverse_action(s).abs().max() <= 180
+    arm = agent.predict_arm(s[:, :4], torch.zeros(2, 2))
+    assert arm.shape == (2, 4) and ((arm >= 0) & (arm <= 30)).all()
+
+
+def test_learning_sanity_forward_and_inverse_models():
+    """On a toy linear plant the internal models' losses fall."""
+    torch.manual_seed(0)
+    cfg = small_cfg(forward_hidden=(64, 64), inverse_hidden=(64, 64), replay_size=200, batch_size=64,
+                    normalize_inputs=True)
+    agent = Agent(cfg, [0])
+    arm = torch.rand(200, 4) * 10 + 10
+    act = (torch.rand(200, 2) - 0.5) * 40
+    nxt = arm + act.repeat(1, 2) / 20
+    for i in range(200):
+        s = torch.cat([arm[i], torch.zeros(2)])[None]
+        s2 = torch.cat([nxt[i], torch.zeros(2)])[None]
+        agent.replay.add(s, act[i:i + 1], torch.zeros(1), s2, torch.ones(1), [True])
+    first = agent.update([True])
+    for _ in range(150):
+        last = agent.update([True])
+    # the sigmoid forward model at the paper's lr 0.01 learns slowly (docs/agent.md); require progress only
+    assert last["forward"][0] < 0.8 * first["forward"][0]
+    assert last["inverse"][0] < 0.1 * first["inverse"][0]

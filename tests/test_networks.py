@@ -1,0 +1,164 @@
+"""Ensemble building blocks: layers, optimizer, noise, replay, arbitrator, integrator."""
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from apac_mj.agent import member_generators
+from apac_mj.arbitrator import Arbitrator
+from apac_mj.buffer import EnsembleReplay
+from apac_mj.config import AgentConfig
+from apac_mj.integrator import integrate
+from apac_mj.networks import EnsembleLinear, build_actor, build_critic
+from apac_mj.noise import OUNoise
+from apac_mj.optim import EnsembleAdam
+
+
+def gens(seeds, which=0):
+    return [member_generators(s)[which] for s in seeds]
+
+
+def test_ensemble_linear_member_equals_single_seed():
+    big = EnsembleLinear(6, 5, gens([3, 4, 5, 6]))
+    for k, seed in enumerate([3, 4, 5, 6]):
+        one = EnsembleLinear(6, 5, gens([seed]))
+        assert torch.equal(big.weight[k], one.weight[0]) and torch.equal(big.bias[k], one.bias[0])
+    assert not torch.equal(big.weight[0], big.weight[1])
+
+
+def test_init_bounds_ddpg():
+    hidden = EnsembleLinear(400, 300, gens([0]))
+    final = EnsembleLinear(300, 2, gens([0]), final=True)
+    assert hidden.weight.abs().max() <= 400 ** -0.5 and hidden.weight.abs().max() > 0.9 * 400 ** -0.5
+    assert final.weight.abs().max() <= 3e-3
+
+
+def test_networks_member_outputs_match_single():
+    x, a = torch.randn(4, 7, 6), torch.randn(4, 7, 2)
+    g4 = gens(range(4))
+    actor, critic = build_actor((16, 12), 180.0, g4), build_critic((16, 12), g4)
+    for k in range(4):
+        g = gens([k])
+        one_actor, one_critic = build_actor((16, 12), 180.0, g), build_critic((16, 12), g)
+        torch.testing.assert_close(actor(x)[k], one_actor(x[k:k + 1])[0], rtol=0, atol=1e-5)
+        torch.testing.assert_close(critic(x, a)[k], one_critic(x[k:k + 1], a[k:k + 1])[0], rtol=0, atol=1e-6)
+    out = actor(x * 100)
+    assert out.shape == (4, 7, 2) and out.abs().max() <= 180.0
+
+
+def test_bad_sizes_raise():
+    with pytest.raises(ValueError, match="layer sizes"):
+        EnsembleLinear(0, 3, gens([0]))
+    with pytest.raises(ValueError, match="even"):
+        build_critic((4, 5), gens([0]))
+
+
+def _adam_pair(wd=1e-3):
+    torch.manual_seed(0)
+    p0 = torch.randn(1, 5, 3)
+    mine = p0.clone().requires_grad_()
+    ref = p0[0].clone().requires_grad_()
+    return mine, ref, EnsembleAdam([([mine], 0.01)], weight_decay=wd), torch.optim.Adam([ref], lr=0.01, weight_decay=wd)
+
+
+def test_ensemble_adam_matches_torch_adam():
+    mine, ref, opt, ref_opt = _adam_pair()
+    for i in range(5):
+        g = torch.randn(5, 3) * (i + 1)
+        opt.step([[g[None]]], [0])
+        ref.grad = g.clone()
+        ref_opt.step()
+        torch.testing.assert_close(mine.detach()[0], ref.detach(), rtol=1e-6, atol=1e-7)
+
+
+def test_ensemble_adam_inactive_members_untouched():
+    p = torch.randn(3, 4, 2, requires_grad=True)
+    opt = EnsembleAdam([([p], 1e-2)], weight_decay=1e-3)
+    opt.step([[torch.randn(3, 4, 2)]], [0, 1, 2])
+    before = [t.detach().clone() for t in (p, opt.exp_avg[0][0], opt.exp_avg_sq[0][0], opt.steps)]
+    opt.step([[torch.randn(3, 4, 2)]], [0, 2])
+    after = [p.detach(), opt.exp_avg[0][0], opt.exp_avg_sq[0][0], opt.steps]
+    for b, a in zip(before, after):
+        assert torch.equal(b[1], a[1])
+        assert not torch.equal(b[0], a[0])
+    assert opt.steps.tolist() == [2.0, 1.0, 2.0]
+
+
+def test_ou_statistics_and_reset():
+    theta, sigma = 0.15, 2.0
+    noise = OUNoise(gens([0, 1], which=2), theta=theta, sigma=sigma)
+    xs = torch.stack([noise.sample() for _ in range(20000)])[1000:]
+    expected_std = sigma / math.sqrt(theta * (2 - theta))
+    assert xs.mean().abs() < 0.5
+    assert abs(xs.std().item() - expected_std) / expected_std < 0.1
+    lag1 = torch.corrcoef(torch.stack([xs[:-1, 0, 0], xs[1:, 0, 0]]))[0, 1]
+    assert abs(lag1 - (1 - theta)) < 0.05
+    noise.reset(torch.tensor([True, False]))
+    assert torch.equal(noise.x[0], torch.zeros(2)) and not torch.equal(noise.x[1], torch.zeros(2))
+    frozen = noise.x[1].clone()
+    noise.sample(torch.tensor([True, False]))
+    assert torch.equal(noise.x[1], frozen)
+
+
+def test_ou_member_matches_single():
+    four, one = OUNoise(gens(range(4), 2)), OUNoise(gens([2], 2))
+    for _ in range(10):
+        assert torch.equal(four.sample()[2], one.sample()[0])
+
+
+def _add(rep, E, value, mask):
+    v = torch.full((E,), float(value))
+    rep.add(v[:, None].expand(E, 6), v[:, None].expand(E, 2), v, v[:, None].expand(E, 6), v * 0, mask)
+
+
+def test_replay_ring_wraparound_and_mask():
+    rep = EnsembleReplay(gens([0, 1], 1), capacity=3)
+    for i in range(5):
+        _add(rep, 2, i, [True, i < 2])
+    assert rep.count == [3, 2] and rep.ptr == [2, 2]
+    assert rep.data["reward"][0].tolist() == [3.0, 4.0, 2.0]
+    assert rep.data["reward"][1].tolist() == [0.0, 1.0, 0.0]
+    batch = rep.sample(200, [0, 1])
+    assert set(batch["reward"][0].tolist()) == {2.0, 3.0, 4.0}
+    assert set(batch["reward"][1].tolist()) == {0.0, 1.0}
+    assert batch["state"].shape == (2, 200, 6)
+
+
+def test_replay_bad_shape_and_empty():
+    rep = EnsembleReplay(gens([0], 1), capacity=3)
+    with pytest.raises(ValueError, match="empty"):
+        rep.sample(4, [0])
+    with pytest.raises(ValueError, match="state must have shape"):
+        rep.add(torch.zeros(1, 5), torch.zeros(1, 2), torch.zeros(1), torch.zeros(1, 6), torch.zeros(1), [True])
+
+
+@pytest.mark.parametrize("mode,expected", [
+    ("ddpg", [True] * 6),
+    ("spac", [False] * 6),
+    #           ep<100,step0  ep>=100,s0  s1 small-d  s1 big-d  s2 small-d  s2 big-d
+    ("apac", [False, True, True, True, True, False]),
+])
+def test_arbitrator_decision_table(mode, expected):
+    arb = Arbitrator(AgentConfig(agent=mode))
+    episode = torch.tensor([50, 100, 100, 150, 100, 150])
+    step = torch.tensor([0, 0, 1, 1, 2, 5])
+    delta = torch.tensor([0.1, 5.0, 0.5, -3.0, -0.99, 1.0])
+    assert arb.use_habit(episode, step, delta).tolist() == expected
+
+
+def test_arbitrator_apac_planning_phase_and_nan():
+    arb = Arbitrator(AgentConfig(agent="apac"))
+    assert arb.use_habit(torch.tensor([99, 99]), torch.tensor([0, 5]), torch.tensor([0.0, 0.0])).tolist() == [False, False]
+    assert arb.use_habit(torch.tensor([200]), torch.tensor([3]), torch.tensor([float("nan")])).tolist() == [False]
+    with pytest.raises(ValueError, match="equal length"):
+        arb.use_habit(torch.tensor([1, 2]), torch.tensor([1]), torch.tensor([0.0]))
+
+
+def test_integrator():
+    obs, pred = torch.zeros(3, 4), torch.ones(3, 4)
+    out = integrate(obs, pred, torch.tensor([True, False, True]))
+    assert out[:, 0].tolist() == [0.0, 1.0, 0.0]
+    with pytest.raises(ValueError, match="vision"):
+        integrate(obs, pred, torch.tensor([True]))
