@@ -12,6 +12,8 @@ import sys
 #: (module, description) for every sub-command module; each registers its own parsers.
 COMMAND_MODULES = [
     "apac_mj.commands.tasks",
+    "apac_mj.commands.grid",
+    "apac_mj.commands.report",
     "apac_mj.commands.check_kinematics",
 ]
 
