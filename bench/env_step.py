@@ -3,7 +3,8 @@
     .venv/bin/python bench/env_step.py [--steps 2000] [--repeats 5]
 
 All variants run side by side in one process on the same model; each figure
-is the best of ``--repeats`` timed blocks (least disturbed by other load), and
+is the best of ``--repeats`` timed blocks, interleaved round-robin across the
+variants (least disturbed by other load), and
 the ratios to raw ``mujoco.mj_step`` (same number of physics sub-steps, same
 model, no Python environment around it) are printed next to them.
 """
@@ -48,16 +49,20 @@ def _raw_stepper(n_sub_steps: int) -> Callable[[np.ndarray], None]:
     return step
 
 
-def _time_us(step: Callable[[np.ndarray], None], actions: np.ndarray, repeats: int) -> float:
-    for a in actions[:100]:
-        step(a)  # warm-up
-    best = float("inf")
+def _time_all_us(steppers: dict[str, Callable[[np.ndarray], None]], actions: np.ndarray,
+                 repeats: int) -> dict[str, float]:
+    """Best time per step of each stepper; blocks interleave round-robin so load spikes hit all alike."""
+    for step in steppers.values():
+        for a in actions[:100]:
+            step(a)  # warm-up
+    best = {name: float("inf") for name in steppers}
     for _ in range(repeats):
-        t0 = time.perf_counter()
-        for a in actions:
-            step(a)
-        best = min(best, (time.perf_counter() - t0) / len(actions))
-    return best * 1e6
+        for name, step in steppers.items():
+            t0 = time.perf_counter()
+            for a in actions:
+                step(a)
+            best[name] = min(best[name], (time.perf_counter() - t0) / len(actions))
+    return {name: t * 1e6 for name, t in best.items()}
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -68,13 +73,13 @@ def main(argv: list[str] | None = None) -> None:
     actions = _actions(args.steps)
     n_servo = planar_arm.N_SUB_STEPS
     n_kin = planar_arm.KINEMATIC_SUB_STEPS
-    rows = [
-        (f"raw mj_step x{n_servo}", _raw_stepper(n_servo)),
-        ("env servo", _env_stepper("servo")),
-        (f"raw mj_step x{n_kin}", _raw_stepper(n_kin)),
-        ("env kinematic", _env_stepper("kinematic")),
-    ]
-    times = {name: _time_us(fn, actions, args.repeats) for name, fn in rows}
+    steppers = {
+        f"raw mj_step x{n_servo}": _raw_stepper(n_servo),
+        "env servo": _env_stepper("servo"),
+        f"raw mj_step x{n_kin}": _raw_stepper(n_kin),
+        "env kinematic": _env_stepper("kinematic"),
+    }
+    times = _time_all_us(steppers, actions, args.repeats)
     raw_servo, raw_kin = times[f"raw mj_step x{n_servo}"], times[f"raw mj_step x{n_kin}"]
     print(f"{'variant':24s} {'us/step':>10s} {'vs raw servo':>13s} {'vs raw kin':>11s}")
     for name, us in times.items():
