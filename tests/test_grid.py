@@ -1,0 +1,171 @@
+"""The experiment grid: presets and their errors, cells, resume, kill -9 and resume, smoke grid + report."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from apac_mj import grid
+from apac_mj.cli import main
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+# -- presets -------------------------------------------------------------------------
+
+@pytest.mark.parametrize("name", ["paper", "quick", "smoke", "demo"])
+def test_shipped_presets_load(name: str) -> None:
+    p = grid.load_preset(name)
+    assert p.name == name and p.agents and p.conditions and p.seeds
+
+
+def test_paper_preset_is_the_papers_study() -> None:
+    p = grid.load_preset("paper")
+    assert p.agents == ("ddpg", "spac", "apac") and p.conditions == grid.CONDITIONS
+    assert p.seeds == tuple(range(50)) and p.episodes == 1000 and p.agent == {}
+    cs = grid.cells(p)
+    assert len(cs) == 12 + 12
+    assert {c.protocols for c in cs if c.agent == "ddpg" and c.region == "all"} == {("grid",)}
+    assert {c.protocols for c in cs if c.agent != "ddpg" and c.region == "all"} == {("grid", "occluded")}
+    assert {c.name for c in cs if c.region == "train"} >= {"apac__changing_target_train_region"}
+
+
+def test_overrides() -> None:
+    p = grid.load_preset("paper", ["seeds=3-5", "episodes=7", "agents=ddpg,apac", "agent.batch_size=64",
+                                   "tests.occluded=false", "device=cpu"])
+    assert p.seeds == (3, 4, 5) and p.episodes == 7 and p.agents == ("ddpg", "apac")
+    assert p.agent == {"batch_size": 64} and not p.tests.occluded
+    assert grid.load_preset("smoke", ["seeds=[1, 4]"]).seeds == (1, 4)
+    assert grid.load_preset("smoke", ["seeds=4"]).seeds == (0, 1, 2, 3)
+    cfg = grid.cells(p)[0].train_config(p)
+    assert cfg.agent.batch_size == 64 and cfg.seeds == (3, 4, 5) and cfg.episodes == 7
+
+
+@pytest.mark.parametrize("override, message", [
+    ("agents=ddpg,sac", "agents has unknown value(s) ['sac']"),
+    ("conditions=moving_target", "conditions has unknown value(s) ['moving_target']"),
+    ("episodes=0", "episodes must be an int >= 1"),
+    ("episodes=1.5", "episodes must be an int >= 1"),
+    ("seeds=5-2", "seed range '5-2' is empty"),
+    ("seeds=[1, 1]", "seeds must be distinct"),
+    ("seeds=abc", "seeds must be an int N"),
+    ("precision=fp8", "precision has unknown value(s) ['fp8']"),
+    ("epochs=3", "unknown key(s) ['epochs']"),
+    ("agent.batch=3", "unknown [agent] key(s) ['batch']"),
+    ("agent.actor_lr=2.0", "actor_lr must be in (0, 1]"),
+    ("tests.occluded=maybe", "tests.occluded must be true or false"),
+    ("tests.vision=true", "[tests] keys must be among"),
+    ("episodes", "must look like key=value"),
+])
+def test_bad_overrides_name_the_problem(override: str, message: str) -> None:
+    with pytest.raises(grid.PresetError) as e:
+        grid.load_preset("smoke", [override])
+    assert message in str(e.value)
+
+
+def test_unknown_preset_lists_known_ones(tmp_path: Path) -> None:
+    with pytest.raises(FileNotFoundError, match="known presets: demo, paper, quick, smoke"):
+        grid.load_preset("huge")
+    bad = tmp_path / "bad.toml"
+    bad.write_text("agents = [\n")
+    with pytest.raises(grid.PresetError, match="bad.toml"):
+        grid.load_preset(bad)
+
+
+def test_cli_reports_preset_errors(capsys) -> None:
+    assert main(["grid", "--preset", "smoke", "--set", "agents=sac", "--out", "/nonexistent/x"]) == 2
+    assert "agents has unknown value(s) ['sac']" in capsys.readouterr().err
+
+
+def test_changed_configuration_is_refused(tmp_path: Path) -> None:
+    p = grid.load_preset("smoke")
+    cell = grid.cells(p)[0]
+    grid.prepare_cell(cell, p, tmp_path)
+    grid.prepare_cell(cell, p, tmp_path)  # same configuration: fine
+    q = grid.load_preset("smoke", ["episodes=9"])
+    with pytest.raises(ValueError, match=r"different configuration \(train_config.episodes: 4 there, 9 now\)"):
+        grid.prepare_cell(cell, q, tmp_path)
+
+
+def test_atomic_write_leaves_no_temporary_files(tmp_path: Path) -> None:
+    target = tmp_path / "m.json"
+    grid.atomic_write_text(target, "one")
+    grid.atomic_write_text(target, "two")
+    assert target.read_text() == "two" and [p.name for p in tmp_path.iterdir()] == ["m.json"]
+
+
+# -- running the grid (needs the trainer) ---------------------------------------------
+
+@pytest.fixture
+def stack() -> None:
+    """Skip the grid runs until the trainer and the evaluation exist."""
+    pytest.importorskip("apac_mj.trainer", reason="the trainer has not landed yet")
+    pytest.importorskip("apac_mj.evaluate", reason="the evaluation has not landed yet")
+
+TINY = ["seeds=2", "episodes=3", "checkpoint_every=1", "conditions=changing_target", "agents=spac,apac",
+        "tests.generalization=false"]
+
+
+def _tables(results: Path) -> tuple[pd.DataFrame, pd.DataFrame]:
+    return grid.load_results(results), grid.load_tests(results)
+
+
+def _assert_same_results(a: Path, b: Path) -> None:
+    (ma, ta), (mb, tb) = _tables(a), _tables(b)
+    pd.testing.assert_frame_equal(ma, mb, check_exact=True)
+    pd.testing.assert_frame_equal(ta, tb, check_exact=True)
+
+
+def test_smoke_grid_then_report(tmp_path: Path, stack: None) -> None:
+    out = tmp_path / "smoke"
+    assert main(["grid", "--preset", "smoke", "--out", str(out), "--no-progress"]) == 0
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert all(c["status"] == "done" for c in manifest["cells"].values())
+    assert len(manifest["cells"]) == 3 * 2 + 3
+    metrics, tests = _tables(out)
+    p = grid.load_preset("smoke")
+    train = metrics[metrics["phase"] == "train"]
+    assert train.groupby(["agent", "condition", "region", "seed"]).size().eq(p.episodes).all()
+    assert set(tests["protocol"]) == {"grid", "occluded", "generalization"}
+    assert main(["report", str(out)]) == 0
+    table = pd.read_csv(out / "report" / "key_numbers.csv")
+    row = table[(table["quantity"] == "test_success") & (table["agent"] == "apac")
+                & (table["condition"] == "changing_target")].iloc[0]
+    grid_test = pd.read_parquet(out / "apac__changing_target" / "eval" / "grid.parquet")
+    assert row["mean"] == pytest.approx(100 * grid_test.groupby("seed")["success"].mean().mean())
+    # re-running skips every finished cell
+    before = {p: p.stat().st_mtime_ns for p in out.glob("*/metrics.parquet")}
+    assert main(["grid", "--preset", "smoke", "--out", str(out), "--no-progress"]) == 0
+    assert before == {p: p.stat().st_mtime_ns for p in out.glob("*/metrics.parquet")}
+
+
+def _grid_cmd(out: Path, extra: list[str] = []) -> list[str]:
+    sets = [a for s in TINY + extra for a in ("--set", s)]
+    return [sys.executable, "-m", "apac_mj.cli", "grid", "--preset", "smoke", "--out", str(out), "--no-progress", *sets]
+
+
+@pytest.mark.slow
+def test_kill_9_and_resume_equals_uninterrupted(tmp_path: Path, stack: None) -> None:
+    """kill -9 the grid after the first checkpoint of the second cell, re-run: same numbers as one clean run."""
+    env = dict(os.environ, OMP_NUM_THREADS="1")
+    clean, killed = tmp_path / "clean", tmp_path / "killed"
+    subprocess.run(_grid_cmd(clean), check=True, env=env, cwd=ROOT, timeout=600)
+    proc = subprocess.Popen(_grid_cmd(killed), env=env, cwd=ROOT, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    ckpt = killed / "apac__changing_target" / "checkpoints" / "latest.pt"
+    deadline = time.monotonic() + 300
+    while not ckpt.exists() and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert proc.poll() is None, "the grid finished before it could be killed; make TINY longer"
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert not (killed / "apac__changing_target" / "DONE").exists()
+    subprocess.run(_grid_cmd(killed), check=True, env=env, cwd=ROOT, timeout=600)
+    _assert_same_results(clean, killed)
