@@ -88,8 +88,12 @@ def select_action(agent: Any, arbitrator: Arbitrator, state: torch.Tensor, episo
 
 def agent_step(agent: Any, arbitrator: Arbitrator, vec_env: VecEnv, state: torch.Tensor, episode: np.ndarray,
                step: np.ndarray, last_delta: np.ndarray, active: np.ndarray, explore: bool = True,
-               zone_radius: float | None = None, action: torch.Tensor | None = None) -> StepInfo:
-    """One step for the ``active`` members; ``action`` (``[E,2]``) bypasses arbitration (babbling).
+               zone_radius: float | None = None, action: torch.Tensor | None = None,
+               habit: torch.Tensor | None = None) -> StepInfo:
+    """One step for the ``active`` members.
+
+    ``action`` (``[E,2]``) and ``habit`` (``[E]`` bool) given: executed as they are
+    (the trainer's babbling); otherwise the arbitrator selects (:func:`select_action`).
 
     ``zone_radius`` is the radius the agent uses to judge its own estimate
     under occlusion (default: the task's).
@@ -97,7 +101,7 @@ def agent_step(agent: Any, arbitrator: Arbitrator, vec_env: VecEnv, state: torch
     device = state.device
     if action is None:
         action, habit = select_action(agent, arbitrator, state, episode, step, last_delta, active, explore)
-    else:
+    elif habit is None:
         habit = torch.zeros(vec_env.E, dtype=torch.bool, device=device)
     predicted = agent.predict_arm(state[:, :4], action)
     obs = vec_env.step(action.detach().cpu().double().numpy(), active)

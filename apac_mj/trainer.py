@@ -1,0 +1,409 @@
+"""The training loop (Algorithm 2's loops): babbling, episodes, metrics, checkpoints, resume.
+
+Read top to bottom: :func:`train` builds the environments and the agent,
+restores the last checkpoint if the run directory has one, then runs the
+batched loop until every member finished ``cfg.episodes`` training episodes.
+
+* Members run free: each member runs its own episode sequence; a member whose
+  episode ended resets and continues; finished members are masked out (no
+  environment step, no update).
+* Motor babbling: the first ``cfg.agent.babbling_episodes`` episodes of every
+  member take uniform random actions in ``±babbling_scale`` degrees. Each
+  transition is stored with the target replaced by the reached end position
+  (so it is terminal with the maximum reward, 0) and the agent is updated
+  after every babbling step as after every training step. Babbling episodes
+  have negative indices in the metrics (``phase="babbling"``) and see the arm.
+* After every environment step: store ``(s_t, a_t, r_t, s_{t+1}, terminal)``
+  for the stepping members, then one ``agent.update(active)``. The
+  arbitrator's ``delta`` for the next step is this transition's TD error.
+* Occluded vision during training: the integrator uses the forward model's
+  prediction wherever ``vision`` is 0 and the agent learns from the reward of
+  its own estimate (see :mod:`apac_mj.rollout`). The paper trains with
+  perfect vision and tests occlusion afterwards (:mod:`apac_mj.evaluate`); the
+  grid does the same.
+* Changing kinematics start after ``growth_start_episode`` *training*
+  episodes: the environment's threshold is shifted by the babbling count.
+
+Checkpoints (every ``cfg.checkpoint_every`` training episodes of the slowest
+member, and at the end) hold the agent (networks, optimizer, replay, noise,
+generators), the environments (:meth:`VecEnv.get_state`), the loop's per-member
+counters and the babbling generators, so a resumed run's numbers equal an
+uninterrupted run's. ``metrics.parquet`` is rewritten (atomically) just before
+each checkpoint; on resume it is cut back to the checkpoint's row count.
+"""
+from __future__ import annotations
+
+import collections
+import dataclasses
+import io
+import json
+import subprocess
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import pandas as pd
+import torch
+from tqdm.auto import tqdm
+
+from apac_mj import checkpoint
+from apac_mj.agent import Agent
+from apac_mj.arbitrator import Arbitrator
+from apac_mj.config import TrainConfig, to_dict
+from apac_mj.rollout import OnEpisodeStart, OnStep, StepInfo, agent_step, observed_state, select_action
+from apac_mj.suite import load_spec
+from apac_mj.vec_env import VecEnv
+
+#: Checkpoints kept in RUN_DIR/checkpoints besides latest.pt.
+KEEP_CHECKPOINTS = 3
+#: Episodes (all seeds) in the progress bar's running success rate and habit share.
+PROGRESS_WINDOW = 20
+METRIC_COLUMNS = ("seed", "episode", "phase", "success", "steps", "return", "final_distance", "habit_actions",
+                  "planning_actions", "l1", "l2", "target_x", "target_y")
+CKPT_KEYS = ("config", "loop", "agent", "env", "babbling_generators", "metric_rows")
+
+
+# -- seeding: the only place random streams are derived ---------------------------------------
+def babbling_generators(seeds: list[int]) -> list[torch.Generator]:
+    """One generator per member for babbling actions (the agent derives its own from the same seeds)."""
+    return [torch.Generator().manual_seed(int(np.random.SeedSequence([int(s), 0xBAB]).generate_state(1)[0]))
+            for s in seeds]
+
+
+# -- per-member loop state -----------------------------------------------------------------
+@dataclasses.dataclass
+class LoopState:
+    """Per-member counters of the batched loop; ``episode < 0`` is babbling."""
+
+    episode: np.ndarray      # [E] current episode index (training episodes from 0, babbling negative)
+    step: np.ndarray         # [E] steps taken in the current episode
+    need_reset: np.ndarray   # [E] bool
+    last_delta: np.ndarray   # [E] TD error of the member's last transition (NaN: none this episode)
+    ret: np.ndarray          # [E] return so far in the episode
+    habit_n: np.ndarray      # [E] habitual actions this episode
+    plan_n: np.ndarray       # [E] planning actions this episode
+    state: torch.Tensor      # [E, 6] the integrator's state estimate
+    checkpoints_done: int = 0
+
+    @classmethod
+    def fresh(cls, E: int, babbling: int, device: torch.device) -> "LoopState":
+        return cls(episode=np.full(E, -babbling, dtype=np.int64), step=np.zeros(E, dtype=np.int64),
+                   need_reset=np.ones(E, dtype=bool), last_delta=np.full(E, np.nan),
+                   ret=np.zeros(E), habit_n=np.zeros(E, dtype=np.int64), plan_n=np.zeros(E, dtype=np.int64),
+                   state=torch.zeros(E, 6, device=device))
+
+    def state_dict(self) -> dict[str, Any]:
+        d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        return {k: (torch.from_numpy(v.copy()) if isinstance(v, np.ndarray) else
+                    v.detach().cpu().clone() if isinstance(v, torch.Tensor) else v) for k, v in d.items()}
+
+    @classmethod
+    def from_state_dict(cls, d: dict[str, Any], device: torch.device) -> "LoopState":
+        kw = {k: (v.numpy().copy() if isinstance(v, torch.Tensor) and k != "state" else v) for k, v in d.items()}
+        kw["state"] = d["state"].to(device)
+        return cls(**kw)
+
+    def slowest(self) -> int:
+        """Training episodes finished by the slowest member."""
+        return int(max(0, self.episode.min()))
+
+
+# -- the loop ----------------------------------------------------------------------------------
+def train(cfg: TrainConfig, out_dir: str | Path, progress: bool = True, on_step: OnStep | None = None,
+          on_episode_start: OnEpisodeStart | None = None, record_every: int | None = None) -> Path:
+    """Train ``cfg.seeds`` side by side on ``cfg.task``; write/resume ``out_dir``; return it."""
+    out_dir = Path(out_dir)
+    config = _prepare_run_dir(cfg, out_dir)
+    if (out_dir / "DONE").is_file():
+        return out_dir
+    seeds, E, B = list(cfg.seeds), len(cfg.seeds), cfg.agent.babbling_episodes
+    spec = load_spec(cfg.task)
+    env = VecEnv(cfg.task, seeds, cfg.actuation, overrides={"growth_start_episode": spec.growth_start_episode + B})
+    agent = Agent(cfg.agent, seeds, device=cfg.device, precision=cfg.precision)
+    arbitrator = Arbitrator(cfg.agent)
+    babble_gens = babbling_generators(seeds)
+    loop, rows = LoopState.fresh(E, B, agent.device), []
+    latest = out_dir / "checkpoints" / "latest.pt"
+    if latest.is_file():
+        loop, rows = _restore(latest, config, agent, env, babble_gens)
+    recorder = _recorder(out_dir, record_every, config)
+    on_step, on_episode_start = _chain_hooks(recorder, on_step, on_episode_start)
+    bar = tqdm(total=cfg.episodes, initial=min(loop.slowest(), cfg.episodes), disable=not progress,
+               desc=f"{cfg.agent.agent} {cfg.task} x{E}", unit="ep")
+    window = collections.deque(((r["success"], r["habit_actions"], r["planning_actions"])
+                                for r in rows if r["phase"] == "train"), maxlen=PROGRESS_WINDOW * E)
+    try:
+        while (active := loop.episode < cfg.episodes).any():
+            _start_episodes(loop, active, env, agent, on_episode_start)
+            info = _step(cfg, loop, active, env, agent, arbitrator, babble_gens)
+            if on_step is not None:
+                on_step(info, env)
+            for row in _finish_episodes(loop, info, seeds):
+                rows.append(row)
+                if row["phase"] == "train":
+                    window.append((row["success"], row["habit_actions"], row["planning_actions"]))
+            _progress(bar, loop, cfg.episodes, window)
+            if loop.slowest() // cfg.checkpoint_every > loop.checkpoints_done:
+                loop.checkpoints_done = loop.slowest() // cfg.checkpoint_every
+                _save(out_dir, config, loop, agent, env, babble_gens, rows)
+        _save(out_dir, config, loop, agent, env, babble_gens, rows)
+        checkpoint.atomic_write_bytes(out_dir / "DONE", lambda f: f.write(b"done\n"))
+    finally:
+        bar.close()
+        if recorder is not None:
+            recorder.close()
+    return out_dir
+
+
+def _start_episodes(loop: LoopState, active: np.ndarray, env: VecEnv, agent: Agent,
+                    on_episode_start: OnEpisodeStart | None) -> None:
+    """Reset the members whose episode ended: environment, state estimate, noise, counters."""
+    starting = active & loop.need_reset
+    if not starting.any():
+        return
+    obs = env.reset(starting)
+    rows = torch.as_tensor(starting, device=loop.state.device)
+    loop.state = torch.where(rows[:, None], observed_state(obs, loop.state.device), loop.state)
+    agent.noise.reset(torch.as_tensor(starting))
+    loop.step[starting], loop.last_delta[starting], loop.ret[starting] = 0, np.nan, 0.0
+    loop.habit_n[starting], loop.plan_n[starting], loop.need_reset[starting] = 0, 0, False
+    if on_episode_start is not None:
+        on_episode_start(starting.copy(), env)
+
+
+def _step(cfg: TrainConfig, loop: LoopState, active: np.ndarray, env: VecEnv, agent: Agent,
+          arbitrator: Arbitrator, babble_gens: list[torch.Generator]) -> StepInfo:
+    """Act (arbitrated, or random while babbling), step, store, update once; advance the loop state."""
+    babbling = active & (loop.episode < 0)
+    action, habit = select_action(agent, arbitrator, loop.state, loop.episode, loop.step, loop.last_delta,
+                                  active, explore=True)
+    if babbling.any():
+        action, habit = _babbling_action(cfg, action, habit, babbling, babble_gens)
+    info = agent_step(agent, arbitrator, env, loop.state, loop.episode, loop.step, loop.last_delta, active,
+                      action=action, habit=habit)
+    s, s2, r, done = _transition(info, babbling)
+    dev = agent.device
+    agent.replay.add(torch.as_tensor(s, device=dev), action, torch.as_tensor(r, device=dev),
+                     torch.as_tensor(s2, device=dev), torch.as_tensor(done, device=dev), torch.as_tensor(active))
+    for _ in range(cfg.agent.updates_per_step):
+        agent.update(torch.as_tensor(active))
+    act_rows = torch.as_tensor(active, device=dev)
+    loop.state = torch.where(act_rows[:, None], torch.as_tensor(s2, device=dev), loop.state)
+    loop.last_delta = np.where(active, info.delta, loop.last_delta)
+    loop.ret += np.where(active, info.reward, 0.0)
+    counted = active & ~babbling
+    loop.habit_n += counted & info.habit
+    loop.plan_n += counted & ~info.habit
+    loop.step += active
+    return info
+
+
+def _babbling_action(cfg: TrainConfig, action: torch.Tensor, habit: torch.Tensor, babbling: np.ndarray,
+                     gens: list[torch.Generator]) -> tuple[torch.Tensor, torch.Tensor]:
+    scale = cfg.agent.babbling_scale
+    action = action.clone()
+    for k in np.flatnonzero(babbling):
+        action[k] = ((torch.rand(2, generator=gens[k]) * 2 - 1) * scale).to(action.device)
+    return action, habit & ~torch.as_tensor(babbling, device=habit.device)
+
+
+def _transition(info: StepInfo, babbling: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(s, s2, r, terminal)`` to store; babbling: target := reached end position, r = 0, terminal.
+
+    Babbling sees the arm, so its next state is MuJoCo's arm even under occluded vision.
+    """
+    s, s2 = info.state.copy(), info.next_state.copy()
+    r, done = info.reward.copy(), info.terminal.astype(np.float32)
+    b = babbling
+    if b.any():
+        reached_end = info.true_arm[b, :2]
+        s[b, 4:], s2[b, :4], s2[b, 4:] = reached_end, info.true_arm[b], reached_end
+        r[b], done[b] = 0.0, 1.0
+    return s, s2, r, done
+
+
+def _finish_episodes(loop: LoopState, info: StepInfo, seeds: list[int]) -> list[dict[str, Any]]:
+    """Metric rows of the members whose episode ended at this step; mark them for reset."""
+    rows = []
+    for k in np.flatnonzero(info.active & info.done):
+        ep = int(loop.episode[k])
+        rows.append({"seed": seeds[k], "episode": ep, "phase": "babbling" if ep < 0 else "train",
+                     "success": bool(info.reached[k]), "steps": int(loop.step[k]), "return": float(loop.ret[k]),
+                     "final_distance": float(info.distance[k]), "habit_actions": int(loop.habit_n[k]),
+                     "planning_actions": int(loop.plan_n[k]), "l1": float(info.link_lengths[k, 0]),
+                     "l2": float(info.link_lengths[k, 1]), "target_x": float(info.target[k, 0]),
+                     "target_y": float(info.target[k, 1])})
+        loop.episode[k] += 1
+        loop.need_reset[k] = True
+    return rows
+
+
+def _progress(bar: tqdm, loop: LoopState, episodes: int, window: collections.deque) -> None:
+    done = min(loop.slowest(), episodes)
+    if done > bar.n:
+        bar.update(done - bar.n)
+        if window:
+            success = np.mean([w[0] for w in window])
+            habit, plan = sum(w[1] for w in window), sum(w[2] for w in window)
+            bar.set_postfix(success=f"{success:.2f}", habit=f"{habit / max(1, habit + plan):.2f}")
+
+
+# -- run directory: config, metrics, checkpoints -----------------------------------------------
+def git_commit() -> str:
+    try:
+        out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).resolve().parent,
+                             capture_output=True, text=True, timeout=10)
+        return out.stdout.strip() if out.returncode == 0 else "unknown"
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+def config_dict(cfg: TrainConfig) -> dict[str, Any]:
+    """The resolved config in JSON form (tuples as lists)."""
+    return json.loads(json.dumps(to_dict(cfg)))
+
+
+def _prepare_run_dir(cfg: TrainConfig, out_dir: Path) -> dict[str, Any]:
+    """Validate ``cfg``; write config.json, or check it matches the one already there."""
+    _validate(cfg)
+    config = config_dict(cfg)
+    path = out_dir / "config.json"
+    if path.is_file():
+        old = json.loads(path.read_text())
+        old.pop("git_commit", None)
+        diff = _diff(old, config)
+        if diff:
+            raise ValueError(f"{out_dir} holds a run with a different config ({'; '.join(diff)}); "
+                             "use another --out or the same settings to resume")
+        return config
+    out_dir.mkdir(parents=True, exist_ok=True)
+    text = json.dumps({**config, "git_commit": git_commit()}, indent=2) + "\n"
+    checkpoint.atomic_write_bytes(path, lambda f: f.write(text.encode()))
+    return config
+
+
+def _diff(old: dict[str, Any], new: dict[str, Any], prefix: str = "") -> list[str]:
+    out = []
+    for k in sorted(set(old) | set(new)):
+        a, b = old.get(k, "<missing>"), new.get(k, "<missing>")
+        if isinstance(a, dict) and isinstance(b, dict):
+            out += _diff(a, b, f"{prefix}{k}.")
+        elif a != b:
+            out.append(f"{prefix}{k}: {a!r} in the run, {b!r} now")
+    return out
+
+
+def _validate(cfg: TrainConfig) -> None:
+    if not cfg.seeds:
+        raise ValueError("at least one seed is needed")
+    if any(not isinstance(s, (int, np.integer)) or s < 0 for s in cfg.seeds) or len(set(cfg.seeds)) != len(cfg.seeds):
+        raise ValueError(f"seeds must be distinct non-negative integers, got {list(cfg.seeds)}")
+    if cfg.episodes < 1:
+        raise ValueError(f"episodes must be >= 1, got {cfg.episodes}")
+    if cfg.checkpoint_every < 1:
+        raise ValueError(f"checkpoint_every must be >= 1, got {cfg.checkpoint_every}")
+    if cfg.agent.babbling_episodes < 0:
+        raise ValueError(f"babbling_episodes must be >= 0, got {cfg.agent.babbling_episodes}")
+    if cfg.device not in ("cpu", "cuda") and not cfg.device.startswith("cuda:"):
+        raise ValueError(f"device must be 'cpu' or 'cuda', got {cfg.device!r}")
+    load_spec(cfg.task)  # unknown task -> KeyError listing the known ones
+
+
+def write_metrics(path: Path, rows: list[dict[str, Any]]) -> None:
+    """Atomically write the metric rows as parquet (columns: METRIC_COLUMNS)."""
+    df = pd.DataFrame(rows, columns=list(METRIC_COLUMNS))
+    buf = io.BytesIO()
+    df.to_parquet(buf, index=False)
+    checkpoint.atomic_write_bytes(path, lambda f: f.write(buf.getvalue()))
+
+
+def _save(out_dir: Path, config: dict[str, Any], loop: LoopState, agent: Agent, env: VecEnv,
+          babble_gens: list[torch.Generator], rows: list[dict[str, Any]]) -> None:
+    write_metrics(out_dir / "metrics.parquet", rows)
+    ckpt = {"config": config, "loop": loop.state_dict(), "agent": agent.state_dict(), "env": env.get_state(),
+            "babbling_generators": [g.get_state() for g in babble_gens], "metric_rows": len(rows),
+            "torch_rng": torch.get_rng_state()}
+    ckpt_dir = out_dir / "checkpoints"
+    checkpoint.save(ckpt, ckpt_dir / f"ckpt_{loop.slowest():08d}.pt")
+    checkpoint.save(ckpt, ckpt_dir / "latest.pt")
+    checkpoint.prune(ckpt_dir, "ckpt_*.pt", KEEP_CHECKPOINTS)
+
+
+def _restore(path: Path, config: dict[str, Any], agent: Agent, env: VecEnv,
+             babble_gens: list[torch.Generator]) -> tuple[LoopState, list[dict[str, Any]]]:
+    ckpt = checkpoint.load(path, required=CKPT_KEYS)
+    if _diff(ckpt["config"], config):
+        raise checkpoint.CheckpointError(f"checkpoint {path} is corrupt or incompatible: it was written with a "
+                                         f"different config ({'; '.join(_diff(ckpt['config'], config))})")
+    try:
+        agent.load_state_dict(_to_device(ckpt["agent"], agent.device))
+        env.set_state(ckpt["env"])
+        for g, s in zip(babble_gens, ckpt["babbling_generators"], strict=True):
+            g.set_state(s)
+        loop = LoopState.from_state_dict(ckpt["loop"], agent.device)
+    except (KeyError, ValueError, RuntimeError, TypeError) as e:
+        raise checkpoint.CheckpointError(f"checkpoint {path} is corrupt or incompatible: "
+                                         f"{type(e).__name__}: {e}") from None
+    torch.set_rng_state(ckpt["torch_rng"])
+    rows = read_metric_rows(path.parent.parent / "metrics.parquet", int(ckpt["metric_rows"]))
+    return loop, rows
+
+
+def _to_device(obj: Any, device: torch.device) -> Any:
+    """Move tensors (not generator states, which are CPU byte tensors) to ``device``."""
+    if isinstance(obj, torch.Tensor):
+        return obj if obj.dtype == torch.uint8 else obj.to(device)
+    if isinstance(obj, dict):
+        return {k: _to_device(v, device) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_to_device(v, device) for v in obj]
+    return obj
+
+
+def read_metric_rows(path: Path, n: int) -> list[dict[str, Any]]:
+    """The first ``n`` rows of metrics.parquet (the checkpoint's); error if fewer are there."""
+    if n == 0:
+        return []
+    if not path.is_file():
+        raise checkpoint.CheckpointError(f"{path} is missing but the checkpoint expects {n} metric rows")
+    df = pd.read_parquet(path)
+    if len(df) < n:
+        raise checkpoint.CheckpointError(f"{path} has {len(df)} rows, the checkpoint expects {n}")
+    return [_plain(r) for r in df.iloc[:n].to_dict("records")]
+
+
+def _plain(row: dict[str, Any]) -> dict[str, Any]:
+    """numpy scalars -> Python scalars (so rebuilt rows equal freshly made ones)."""
+    return {k: (v.item() if hasattr(v, "item") else v) for k, v in row.items()}
+
+
+# -- recordings (apac_mj.recording) ----------------------------------------------------------------
+def _recorder(out_dir: Path, record_every: int | None, config: dict[str, Any]) -> Any:
+    """``apac_mj.recording.EpisodeRecorder(out_dir / "recordings", record_every, config)`` if asked for."""
+    if record_every is None:
+        return None
+    if record_every < 1:
+        raise ValueError(f"record_every must be >= 1, got {record_every}")
+    from apac_mj import recording
+    if not hasattr(recording, "EpisodeRecorder"):
+        raise RuntimeError("--record-every needs apac_mj.recording.EpisodeRecorder, which this version lacks")
+    return recording.EpisodeRecorder(out_dir / "recordings", record_every=record_every, config=config)
+
+
+def _chain_hooks(recorder: Any, on_step: OnStep | None,
+                 on_episode_start: OnEpisodeStart | None) -> tuple[OnStep | None, OnEpisodeStart | None]:
+    if recorder is None:
+        return on_step, on_episode_start
+    hooks_step = [h for h in (recorder.on_step, on_step) if h is not None]
+    hooks_start = [h for h in (recorder.on_episode_start, on_episode_start) if h is not None]
+
+    def step_all(info: StepInfo, env: VecEnv) -> None:
+        for h in hooks_step:
+            h(info, env)
+
+    def start_all(members: np.ndarray, env: VecEnv) -> None:
+        for h in hooks_start:
+            h(members, env)
+
+    return step_all, start_all
+
