@@ -1,0 +1,122 @@
+"""Training loop: ensemble members equal single-seed runs, exact resume, checkpoint errors, run dir contents."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+
+from apac_mj import checkpoint
+from apac_mj.config import AgentConfig, TrainConfig
+from apac_mj.trainer import METRIC_COLUMNS, train
+
+torch.set_num_threads(1)  # tiny networks: threads only add overhead on a shared 2-core machine
+
+TINY = dict(actor_hidden=(16, 16), critic_hidden=(16, 16), forward_hidden=(16, 16), inverse_hidden=(16, 16),
+            batch_size=8, replay_size=64, babbling_episodes=1, planning_episodes=2)
+
+
+def tiny_config(seeds=(0, 1), episodes=4, agent="apac", task="changing_target", **kw) -> TrainConfig:
+    return TrainConfig(task=task, seeds=tuple(seeds), episodes=episodes, checkpoint_every=2, actuation="kinematic",
+                       agent=AgentConfig(agent=agent, **{**TINY, **kw}))
+
+
+def final_weights(run: Path) -> dict[str, torch.Tensor]:
+    ckpt = checkpoint.load(run / "checkpoints" / "latest.pt")
+    return ckpt["agent"]["networks"]["actor"] | {f"fwd.{k}": v for k, v in ckpt["agent"]["networks"]["forward_model"].items()}
+
+
+def test_run_directory_contents(tmp_path):
+    run = train(tiny_config(), tmp_path / "run", progress=False)
+    df = pd.read_parquet(run / "metrics.parquet")
+    assert list(df.columns) == list(METRIC_COLUMNS)
+    for seed in (0, 1):
+        d = df[df.seed == seed]
+        assert d[d.phase == "train"].episode.tolist() == [0, 1, 2, 3]
+        assert d[d.phase == "babbling"].episode.tolist() == [-1]
+        train_rows = d[d.phase == "train"]
+        assert (train_rows.habit_actions + train_rows.planning_actions == train_rows.steps).all()
+        assert (d[d.phase == "babbling"].habit_actions == 0).all()
+    # APAC plans exclusively during the first planning_episodes (2) training episodes.
+    assert (df[(df.phase == "train") & (df.episode < 2)].habit_actions == 0).all()
+    assert ((df.success & (df.final_distance <= 0.5)) == df.success).all()
+    cfg = json.loads((run / "config.json").read_text())
+    assert cfg["seeds"] == [0, 1] and "git_commit" in cfg
+    assert (run / "DONE").is_file()
+    assert sorted(p.name for p in (run / "checkpoints").glob("ckpt_*.pt")) == ["ckpt_00000002.pt", "ckpt_00000004.pt"]
+
+
+def test_ensemble_member_equals_single_seed(tmp_path):
+    seeds = (3, 5, 7, 11)
+    ens = pd.read_parquet(train(tiny_config(seeds, episodes=3), tmp_path / "ens", progress=False) / "metrics.parquet")
+    alone = pd.read_parquet(train(tiny_config((7,), episodes=3), tmp_path / "one", progress=False) / "metrics.parquet")
+    member = ens[ens.seed == 7].reset_index(drop=True)
+    pd.testing.assert_frame_equal(member, alone.reset_index(drop=True), check_exact=True)
+    w_ens, w_one = final_weights(tmp_path / "ens"), final_weights(tmp_path / "one")
+    for k in w_one:
+        assert torch.equal(w_ens[k][2], w_one[k][0]), k
+
+
+class Crash(Exception):
+    pass
+
+
+def test_resume_equals_uninterrupted(tmp_path):
+    cfg = tiny_config((0, 1), episodes=6)
+    full = train(cfg, tmp_path / "full", progress=False)
+    calls = {"n": 0}
+
+    def crash_after_checkpoint(info, env):
+        # The first checkpoint (slowest member at 2 episodes) is written after some step; crash a few steps later.
+        if (tmp_path / "cut" / "checkpoints" / "latest.pt").is_file():
+            calls["n"] += 1
+            if calls["n"] == 7:
+                raise Crash()
+
+    with pytest.raises(Crash):
+        train(cfg, tmp_path / "cut", progress=False, on_step=crash_after_checkpoint)
+    assert not (tmp_path / "cut" / "DONE").exists()
+    resumed = train(cfg, tmp_path / "cut", progress=False)
+    a, b = pd.read_parquet(full / "metrics.parquet"), pd.read_parquet(resumed / "metrics.parquet")
+    pd.testing.assert_frame_equal(a, b, check_exact=True)
+    wa, wb = final_weights(full), final_weights(resumed)
+    assert all(torch.equal(wa[k], wb[k]) for k in wa)
+
+
+def test_config_mismatch_is_a_clear_error(tmp_path):
+    train(tiny_config(episodes=2), tmp_path / "run", progress=False)
+    with pytest.raises(ValueError, match="different config.*episodes"):
+        train(tiny_config(episodes=3), tmp_path / "run", progress=False)
+
+
+@pytest.mark.parametrize("damage", ["truncate", "garbage"])
+def test_corrupt_checkpoint_is_a_clear_error(tmp_path, damage):
+    cfg = tiny_config(episodes=4)
+    run = tmp_path / "run"
+    train(cfg, run, progress=False)
+    latest = run / "checkpoints" / "latest.pt"
+    data = latest.read_bytes()
+    latest.write_bytes(data[: len(data) // 2] if damage == "truncate"
+                       else np.random.default_rng(0).bytes(len(data)))
+    (run / "DONE").unlink()
+    with pytest.raises(checkpoint.CheckpointError, match=r"checkpoint .*latest.pt is corrupt or incompatible"):
+        train(cfg, run, progress=False)
+
+
+def test_checkpoint_missing_keys_and_roundtrip(tmp_path):
+    path = checkpoint.save({"a": torch.arange(3), "b": [1, "x"]}, tmp_path / "c.pt")
+    assert torch.equal(checkpoint.load(path)["a"], torch.arange(3))
+    with pytest.raises(checkpoint.CheckpointError, match="missing key"):
+        checkpoint.load(path, required=("a", "agent"))
+    with pytest.raises(checkpoint.CheckpointError, match="does not exist"):
+        checkpoint.load(tmp_path / "nope.pt")
+
+
+def test_bad_config_values(tmp_path):
+    with pytest.raises(ValueError, match="seeds must be distinct"):
+        train(tiny_config(seeds=(1, 1)), tmp_path / "a", progress=False)
+    with pytest.raises(KeyError, match="unknown task"):
+        train(tiny_config(task="no_such_task"), tmp_path / "b", progress=False)
