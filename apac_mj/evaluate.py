@@ -1,0 +1,247 @@
+"""Frozen-network tests of a finished run (the paper's "Results" protocols).
+
+``evaluate(run_dir, protocols)`` loads the run's last checkpoint, freezes the
+networks (no noise, no updates) and runs, batched over all members at once:
+
+* ``grid``: the 100 angle-grid targets (:func:`apac_mj.kinematics.angle_grid`
+  through the motion function at each member's end-of-training lengths);
+  static-target runs: the member's own target, 100 episodes. Perfect vision.
+* ``occluded`` (SPAC and APAC; not applicable to DDPG): the same targets with
+  the target and arm seen at step 0 only. The arm moves on the forward
+  model's chained estimate and stops when that estimate is inside the target
+  zone (or after the episode's 30 steps); the real final distance is recorded.
+  The environment's own reach test is disabled (zone radius ~0) so that its
+  termination cannot tell the agent anything true.
+* ``generalization``: the grid targets inside the task's test region
+  (``y >= region.test_y_min``), perfect vision.
+
+Arbitration is the trained one after the planning phase (APAC: the actor on
+the first two steps, then ``|delta| < 1``). Lengths are frozen at their
+end-of-training values during the tests. Time cost: a planning action costs
+3, a habitual one 1. Writes ``eval/<protocol>.parquet`` (one row per seed and
+target) and ``eval/summary.json``; returns the summary.
+"""
+from __future__ import annotations
+
+import io
+import json
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+import pandas as pd
+import torch
+from tqdm.auto import tqdm
+
+from apac_mj import checkpoint
+from apac_mj.agent import Agent
+from apac_mj.arbitrator import Arbitrator
+from apac_mj.config import TrainConfig, train_config_from_dict
+from apac_mj.kinematics import angle_grid, motion_function
+from apac_mj.rollout import OnEpisodeStart, OnStep, agent_step, observed_state, select_action
+from apac_mj.suite import load_spec
+from apac_mj.suite.task_spec import TaskSpec
+from apac_mj.vec_env import VecEnv
+
+PROTOCOLS = ("grid", "occluded", "generalization")
+#: Time cost of one action (the paper's Fig. 6: planning three times slower than a habit).
+PLANNING_COST, HABIT_COST = 3, 1
+#: Environment zone radius in the occluded protocol: its reach test never fires.
+_NO_REACH_RADIUS = 1e-9
+COLUMNS = ("seed", "target_index", "target_x", "target_y", "success", "steps", "final_distance", "habit_actions",
+           "planning_actions", "time_cost")
+
+
+def load_run(run_dir: Path, device: str | None = None) -> tuple[TrainConfig, Agent, dict[str, Any]]:
+    """The run's config, its agent with the last checkpoint's weights, and the checkpoint."""
+    run_dir = Path(run_dir)
+    path = run_dir / "config.json"
+    if not path.is_file():
+        raise FileNotFoundError(f"{run_dir} is not a run directory (no config.json); train one with apac-mj train")
+    d = json.loads(path.read_text())
+    d.pop("git_commit", None)
+    cfg = train_config_from_dict(d)
+    if device is not None:
+        cfg.device = device
+    ckpt = checkpoint.load(run_dir / "checkpoints" / "latest.pt", required=("agent", "env"))
+    agent = Agent(cfg.agent, list(cfg.seeds), device=cfg.device, precision=cfg.precision)
+    agent.load_state_dict(ckpt["agent"])
+    return cfg, agent, ckpt
+
+
+def evaluate(run_dir: str | Path, protocols: Sequence[str] = ("grid", "occluded"), region: str | None = None,
+             device: str | None = None, progress: bool = False, on_step: OnStep | None = None,
+             on_episode_start: OnEpisodeStart | None = None, limit: int | None = None) -> dict[str, Any]:
+    """Run the frozen-network ``protocols``; write eval/*.parquet and eval/summary.json; return the summary.
+
+    ``region`` ("test" or "train") restricts the targets of every protocol to
+    that part of the task's region split (``generalization`` implies "test").
+    ``limit`` keeps only the first ``limit`` targets per member (quick checks).
+    """
+    unknown = [p for p in protocols if p not in PROTOCOLS]
+    if unknown or not protocols:
+        raise ValueError(f"unknown protocol(s) {unknown}; choose from {PROTOCOLS}")
+    if limit is not None and limit < 1:
+        raise ValueError(f"limit must be >= 1, got {limit}")
+    if region not in (None, "test", "train"):
+        raise ValueError(f"region must be 'test' or 'train', got {region!r}")
+    run_dir = Path(run_dir)
+    cfg, agent, ckpt = load_run(run_dir, device)
+    spec = load_spec(cfg.task)
+    lengths = np.stack([m["task"]["lengths"].numpy() for m in ckpt["env"]["members"]])
+    own = [m["task"]["static_target"] for m in ckpt["env"]["members"]]
+    summary = _read_summary(run_dir)
+    summary.update(run_dir=str(run_dir), agent=cfg.agent.agent, task=cfg.task, seeds=list(cfg.seeds),
+                   finished=(run_dir / "DONE").is_file())
+    for protocol in protocols:
+        if protocol == "occluded" and cfg.agent.agent == "ddpg":
+            summary.setdefault("protocols", {})[protocol] = {"applicable": False,
+                                                             "reason": "DDPG has no forward model to move on"}
+            continue
+        reg = "test" if protocol == "generalization" else region
+        targets = test_targets(spec, lengths, own, grid_only=protocol == "generalization", region=reg)
+        targets = [t[:limit] for t in targets] if limit is not None else targets
+        rows = run_protocol(cfg, agent, spec, lengths, targets, occluded=protocol == "occluded",
+                            progress=progress, on_step=on_step, on_episode_start=on_episode_start)
+        df = pd.DataFrame(rows)
+        if protocol == "occluded":
+            df = df.drop(columns=["path_x", "path_y"])
+        _write_parquet(run_dir / "eval" / f"{protocol}.parquet", df)
+        summary.setdefault("protocols", {})[protocol] = summarize(df, spec.zone_radius)
+    text = json.dumps(summary, indent=2) + "\n"
+    checkpoint.atomic_write_bytes(run_dir / "eval" / "summary.json", lambda f: f.write(text.encode()))
+    return summary
+
+
+def test_targets(spec: TaskSpec, lengths: np.ndarray, own: list[Any], grid_only: bool = False,
+                 region: str | None = None) -> list[np.ndarray]:
+    """Per member ``[n_k, 2]`` targets: the angle grid at its lengths (or its own static target x100).
+
+    Grid targets off the plane are dropped; ``region`` keeps only the "test"
+    (``y >= test_y_min``) or "train" part.
+    """
+    out = []
+    for k, (l1, l2) in enumerate(lengths):
+        if spec.target_mode == "static" and not grid_only:
+            if own[k] is None:
+                raise ValueError(f"member {k} has no static target in the checkpoint")
+            t = np.repeat(np.asarray(own[k], dtype=np.float64)[None], 100, axis=0)
+        else:
+            g = angle_grid()
+            t, _ = motion_function(g[:, 0], g[:, 1], l1, l2, spec.origin)
+            w, h = spec.plane_size
+            t = t[(t[:, 0] >= 0) & (t[:, 0] <= w) & (t[:, 1] >= 0) & (t[:, 1] <= h)]
+        if region is not None:
+            in_test = t[:, 1] >= spec.region.test_y_min
+            t = t[in_test if region == "test" else ~in_test]
+        out.append(t)
+    return out
+
+
+def _eval_env(cfg: TrainConfig, spec: TaskSpec, lengths: np.ndarray, occluded: bool) -> VecEnv:
+    overrides: dict[str, Any] = {"growth_start_episode": 2**31 - 1}
+    if occluded:
+        overrides.update(vision="occluded", zone_radius=_NO_REACH_RADIUS)
+    else:
+        overrides.update(vision="perfect")
+    if spec.kinematics_mode == "static":
+        overrides["kinematics_mode"] = "changing"  # keep the lengths set below across resets
+    env = VecEnv(cfg.task, list(cfg.seeds), cfg.actuation, overrides=overrides)
+    env.set_link_lengths(lengths)
+    return env
+
+
+def run_protocol(cfg: TrainConfig, agent: Agent, spec: TaskSpec, lengths: np.ndarray, targets: list[np.ndarray],
+                 occluded: bool, progress: bool = False, on_step: OnStep | None = None,
+                 on_episode_start: OnEpisodeStart | None = None) -> list[dict[str, Any]]:
+    """Episode ``i`` of every member goes to its ``targets[k][i]``; all members side by side."""
+    env = _eval_env(cfg, spec, lengths, occluded)
+    arbitrator = Arbitrator(cfg.agent)
+    counts = np.array([len(t) for t in targets])
+    rows = []
+    for i in tqdm(range(int(counts.max(initial=0))), disable=not progress, desc="evaluate", unit="target"):
+        members = counts > i
+        padded = np.stack([t[i] if len(t) > i else np.zeros(2) for t in targets])
+        env.set_target_override(padded, members)
+        rows += _episode(cfg, agent, arbitrator, env, spec, members, i, occluded, on_step, on_episode_start)
+    return rows
+
+
+def _episode(cfg: TrainConfig, agent: Agent, arbitrator: Arbitrator, env: VecEnv, spec: TaskSpec,
+             members: np.ndarray, index: int, occluded: bool, on_step: OnStep | None,
+             on_episode_start: OnEpisodeStart | None) -> list[dict[str, Any]]:
+    """One frozen episode for ``members``; returns their result rows."""
+    E = env.E
+    obs = env.reset(members)
+    if on_episode_start is not None:
+        on_episode_start(members.copy(), env)
+    state = observed_state(obs, agent.device)
+    running, step = members.copy(), np.zeros(E, dtype=np.int64)
+    habit_n, plan_n = np.zeros(E, dtype=np.int64), np.zeros(E, dtype=np.int64)
+    last_delta = np.full(E, np.nan)
+    path = [[env.true_arm()[k, :2].copy()] for k in range(E)]
+    after_planning = np.full(E, cfg.agent.planning_episodes, dtype=np.int64)
+    while running.any():
+        action, habit = select_action(agent, arbitrator, state, after_planning, step, last_delta, running,
+                                      explore=False)
+        info = agent_step(agent, arbitrator, env, state, np.full(E, index), step, last_delta, running,
+                          explore=False, zone_radius=spec.zone_radius, action=action, habit=habit)
+        if on_step is not None:
+            on_step(info, env)
+        rows = torch.as_tensor(running, device=state.device)
+        state = torch.where(rows[:, None], torch.as_tensor(info.next_state, device=state.device), state)
+        last_delta = np.where(running, info.delta, last_delta)
+        habit_n += running & info.habit
+        plan_n += running & ~info.habit
+        step += running
+        for k in np.flatnonzero(running):
+            path[k].append(info.true_arm[k, :2].copy())
+        stop = info.done | (info.terminal if occluded else np.zeros(E, dtype=bool))
+        running &= ~stop
+    return [_row(env, k, index, step, habit_n, plan_n, path, spec.zone_radius) for k in np.flatnonzero(members)]
+
+
+def _row(env: VecEnv, k: int, index: int, step: np.ndarray, habit_n: np.ndarray, plan_n: np.ndarray,
+         path: list[list[np.ndarray]], zone_radius: float) -> dict[str, Any]:
+    target = env.targets()[k]
+    distance = float(env.distances()[k])
+    p = np.array(path[k])
+    return {"seed": env.seeds[k], "target_index": index, "target_x": float(target[0]), "target_y": float(target[1]),
+            "success": distance <= zone_radius, "steps": int(step[k]), "final_distance": distance,
+            "habit_actions": int(habit_n[k]), "planning_actions": int(plan_n[k]),
+            "time_cost": time_cost(int(habit_n[k]), int(plan_n[k])),
+            "path_x": p[:, 0].tolist(), "path_y": p[:, 1].tolist()}
+
+
+def time_cost(habit_actions: int, planning_actions: int) -> int:
+    """The paper's time cost: a planning action costs 3, a habitual one 1."""
+    return HABIT_COST * habit_actions + PLANNING_COST * planning_actions
+
+
+def summarize(df: pd.DataFrame, zone_radius: float) -> dict[str, Any]:
+    """Success rate, mean steps to reach (successes), time cost, distances; overall and per seed."""
+    if df.empty:
+        return {"applicable": True, "episodes": 0}
+    reached = df[df.success]
+    per_seed = df.groupby("seed").success.mean()
+    return {"applicable": True, "episodes": int(len(df)), "success_rate": float(df.success.mean()),
+            "mean_steps_to_reach": float(reached.steps.mean()) if len(reached) else None,
+            "mean_steps": float(df.steps.mean()), "mean_time_cost": float(df.time_cost.mean()),
+            "mean_time_cost_to_reach": float(reached.time_cost.mean()) if len(reached) else None,
+            "habit_share": float(df.habit_actions.sum() / max(1, (df.habit_actions + df.planning_actions).sum())),
+            "final_distance_mean": float(df.final_distance.mean()),
+            "final_distance_min": float(df.final_distance.min()),
+            "final_distance_max": float(df.final_distance.max()), "zone_radius": zone_radius,
+            "success_rate_per_seed": {str(int(s)): float(v) for s, v in per_seed.items()},
+            "targets_per_seed": {str(int(s)): int(v) for s, v in df.groupby("seed").size().items()}}
+
+
+def _read_summary(run_dir: Path) -> dict[str, Any]:
+    path = run_dir / "eval" / "summary.json"
+    return json.loads(path.read_text()) if path.is_file() else {}
+
+
+def _write_parquet(path: Path, df: pd.DataFrame) -> None:
+    buf = io.BytesIO()
+    df.to_parquet(buf, index=False)
+    checkpoint.atomic_write_bytes(path, lambda f: f.write(buf.getvalue()))
