@@ -58,6 +58,8 @@ ENTITY_PATHS = (
     ABS_DELTA, DELTA_THRESHOLD, CONTROLLER, FORWARD_ERROR, KINEMATICS_ERROR, L1, L2, VISION, EVENTS,
 )
 
+#: Chunk batching of the file sink: flush after this many seconds or bytes (or at close).
+BATCH_SECONDS, BATCH_BYTES = 60.0, 8 * 1024 * 1024
 #: Controller series values.
 HABIT, PLANNING = 1.0, 0.0
 #: Pixels per cm of the distance-field image.
@@ -222,7 +224,12 @@ class Recording:
         self.delta_threshold = float(delta_threshold)
         self.frames = 0
         self._path_points: list[np.ndarray] = []
-        self._stream = rr.RecordingStream(APPLICATION_ID, recording_id=f"{name}", make_default=False)
+        #: Time series rows (episode, step, frame, value) per entity, sent at each episode start and at close.
+        self._series: dict[str, list[tuple[int, int, int, float]]] = {}
+        # Batch generously: a file gains nothing from low latency, and every chunk carries its own schema.
+        batching = rr.ChunkBatcherConfig(flush_tick=BATCH_SECONDS, flush_num_bytes=BATCH_BYTES)
+        self._stream = rr.RecordingStream(APPLICATION_ID, recording_id=name, make_default=False,
+                                          batcher_config=batching)
         self._stream.save(str(self.path), default_blueprint=default_blueprint(self.plane_size))
         self._stream.send_recording_name(name)
         self._send_properties(config or {})
@@ -260,6 +267,7 @@ class Recording:
     def start_episode(self, episode: int, target: Sequence[float], link_lengths: Sequence[float],
                       note: str = "") -> None:
         """Log the episode's target, target zone and distance field, and the start event."""
+        self.flush_series()
         self._path_points = []
         self._set_time(episode, 0)
         target = np.asarray(target, dtype=np.float64)
@@ -307,13 +315,26 @@ class Recording:
     def _log_series(self, rec: StepRecord) -> None:
         values = {
             REWARD: rec.reward, DISTANCE: rec.distance, ABS_DELTA: abs(rec.delta),
-            DELTA_THRESHOLD: self.delta_threshold, CONTROLLER: HABIT if rec.habit else PLANNING,
+            DELTA_THRESHOLD: self.delta_threshold,
+            CONTROLLER: float("nan") if rec.step == 0 else HABIT if rec.habit else PLANNING,  # none acts at step 0
             FORWARD_ERROR: forward_model_error(rec), KINEMATICS_ERROR: kinematics_error(rec, self.origin),
             L1: rec.link_lengths[0], L2: rec.link_lengths[1], VISION: 1.0 if rec.vision else 0.0,
         }
         for path, value in values.items():
             if np.isfinite(value):
-                self._stream.log(path, rr.Scalars(float(value)))
+                self._series.setdefault(path, []).append((rec.episode, rec.step, self.frames, float(value)))
+
+    def flush_series(self) -> None:
+        """Send the buffered time series as columns (one call per series instead of one per step)."""
+        for path, rows in self._series.items():
+            episode, step, frame, value = zip(*rows)
+            self._stream.send_columns(
+                path,
+                indexes=[rr.TimeColumn("episode", sequence=episode), rr.TimeColumn("step", sequence=step),
+                         rr.TimeColumn("frame", sequence=frame)],
+                columns=rr.Scalars.columns(scalars=np.asarray(value, dtype=np.float64)),
+            )
+        self._series = {}
 
     def _log_step_events(self, rec: StepRecord) -> None:
         if rec.step > 0 and not rec.vision:
@@ -324,7 +345,8 @@ class Recording:
             self.event(f"time limit at step {rec.step} (distance {rec.distance:.3f} cm)", level="WARN")
 
     def close(self) -> None:
-        """Flush and close the file."""
+        """Send the buffered series, flush and close the file."""
+        self.flush_series()
         self._stream.flush()
         self._stream.disconnect()
 
@@ -423,3 +445,126 @@ def recording_for_env(path: str | Path, env: Any, config: dict[str, Any] | None 
     spec = env.task.spec
     return Recording(path, config, name=name, origin=spec.origin, plane_size=spec.plane_size,
                      zone_radius=spec.zone_radius, delta_threshold=delta_threshold)
+
+
+# -- hooks for training and rollouts ----------------------------------------------------------
+class EpisodeRecorder:
+    """Records every ``record_every``-th episode of one member through the rollout hooks.
+
+    Pass :meth:`on_episode_start` and :meth:`on_step` as the hooks of
+    :func:`apac_mj.trainer.train` (``record_every=N`` does it) or of a rollout
+    loop built on :func:`apac_mj.rollout.agent_step`. Only recorded episodes
+    are rendered. Episode ``e`` counts training episodes (babbling negative):
+    the member's reset count minus ``config["agent"]["babbling_episodes"]``.
+
+    Args:
+      directory: where one ``episode_XXXXXX.rrd`` per recorded episode goes (ignored with ``out``).
+      record_every: record episodes whose number is a multiple of this.
+      config: the run's configuration (saved as the ``config`` recording property).
+      member: which ensemble member (seed index) to record.
+      out: write every recorded episode into this one .rrd file instead.
+      keep_frames: keep the rendered RGB frames in :attr:`frames` (for a video).
+    """
+
+    def __init__(self, directory: str | Path, record_every: int = 1, config: dict[str, Any] | None = None, *,
+                 member: int = 0, out: str | Path | None = None, keep_frames: bool = False) -> None:
+        if record_every < 1:
+            raise ValueError(f"record_every must be >= 1, got {record_every}")
+        if member < 0:
+            raise ValueError(f"member must be >= 0, got {member}")
+        self.directory, self.record_every, self.member = Path(directory), int(record_every), int(member)
+        self.config = dict(config or {})
+        agent_cfg = self.config.get("agent", {})
+        self.babbling = int(agent_cfg.get("babbling_episodes", 0))
+        self.delta_threshold = float(agent_cfg.get("delta_threshold", 1.0))
+        self.out = None if out is None else Path(out)
+        self.keep_frames = keep_frames
+        #: RGB frames of the recorded steps (with ``keep_frames``).
+        self.frames: list[np.ndarray] = []
+        #: The .rrd files written so far.
+        self.files: list[Path] = []
+        self._recording: Recording | None = None
+        self._renderer: Renderer | None = None
+        self._start: tuple[StepRecord, np.ndarray] | None = None
+        self._recording_episode = False
+
+    # -- hooks ----------------------------------------------------------------------------------
+    def on_episode_start(self, members: np.ndarray, vec_env: Any) -> None:
+        """Decide whether the member's new episode is recorded; if so, render its start pose."""
+        m = self.member
+        if m >= vec_env.E:
+            raise ValueError(f"member {m} out of range: the ensemble has {vec_env.E} members")
+        if not bool(np.asarray(members)[m]):
+            return
+        episode = vec_env.reach_task(m).episode - self.babbling
+        self._recording_episode = episode % self.record_every == 0
+        if not self._recording_episode:
+            return
+        physics = vec_env.physics(m)
+        start = StepRecord(
+            episode=episode, step=0, true_arm=np.concatenate([physics.end_effector(), physics.elbow()]),
+            joint_angles=physics.joint_angles(), link_lengths=physics.link_lengths(), target=physics.target(),
+            distance=physics.distance_to_target(), vision=True)
+        self._start = (start, self._render(physics))
+
+    def on_step(self, info: Any, vec_env: Any) -> None:
+        """Log the member's step (the episode's file is opened at its first step)."""
+        m = self.member
+        if not self._recording_episode or not bool(np.asarray(info.active)[m]):
+            return
+        rec = StepRecord.from_step_info(info, m)
+        rec.step += 1  # StepInfo counts the step at which the action was taken; the record, the arm after it
+        if self._start is not None:
+            self._open_episode(rec.episode, vec_env)
+        self._log(rec, self._render(vec_env.physics(m)))
+        if rec.done:
+            self._recording_episode = False
+            if self.out is None:
+                self._close_recording()
+
+    def close(self) -> None:
+        """Close the open recording and the renderer."""
+        self._close_recording()
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    # -- internals ------------------------------------------------------------------------------
+    def _render(self, physics: Any) -> np.ndarray:
+        if self._renderer is None or self._renderer.physics is not physics:
+            if self._renderer is not None:
+                self._renderer.close()
+            self._renderer = Renderer(physics)
+        return self._renderer.render()
+
+    def _open_episode(self, episode: int, vec_env: Any) -> None:
+        start, frame = self._start  # type: ignore[misc]
+        self._start = None
+        start.episode = episode
+        if self._recording is None:
+            path = self.out or self.directory / f"episode_{episode:06d}.rrd"
+            spec = vec_env.spec
+            self._recording = Recording(path, self.config, name=path.stem, origin=spec.origin,
+                                        plane_size=spec.plane_size, zone_radius=spec.zone_radius,
+                                        delta_threshold=self.delta_threshold)
+            self.files.append(path)
+        note = "(vision occluded after the first step)" if vec_env.spec.occluded else ""
+        self._recording.start_episode(episode, start.target, start.link_lengths, note=note)
+        self._log(start, frame)
+
+    def _log(self, rec: StepRecord, frame: np.ndarray) -> None:
+        assert self._recording is not None
+        self._recording.log_step(rec, encode_jpeg(frame))
+        if self.keep_frames:
+            self.frames.append(frame)
+
+    def _close_recording(self) -> None:
+        if self._recording is not None:
+            self._recording.close()
+            self._recording = None
+
+    def __enter__(self) -> "EpisodeRecorder":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -23,7 +23,6 @@ def _record_plain_rollout(path: Path, task: str, episodes: int, seed: int = 0, *
             first = R.step_record_from_env(env, ep, ts)
             rec.start_episode(ep, first.target, first.link_lengths)
             rec.log_step(first, render.encode_jpeg(ren.render()))
-            logged["habit"].append(False)
             logged["steps"] += 1
             while not ts.last():
                 habit = bool(rng.integers(2))
@@ -140,3 +139,68 @@ def test_write_video_writes_every_frame(tmp_path, suffix):
     assert len(list(iio.imiter(out))) == 4
     with pytest.raises(ValueError, match="mp4 or .gif"):
         render.write_video(tmp_path / "v.avi", frames)
+
+
+def _tiny_train_config(seeds=(0,)):
+    from apac_mj.config import AgentConfig, TrainConfig
+
+    agent = AgentConfig(agent="apac", babbling_episodes=1, planning_episodes=1, batch_size=16, replay_size=64,
+                        actor_hidden=(32, 32), critic_hidden=(32, 32), forward_hidden=(32, 32),
+                        inverse_hidden=(32, 32))
+    return TrainConfig(task="changing_target", seeds=seeds, episodes=3, agent=agent)
+
+
+def test_train_records_every_nth_episode_of_the_first_seed(tmp_path):
+    import torch
+
+    from apac_mj.trainer import train
+
+    torch.set_num_threads(1)
+    reported: dict[int, list[bool]] = {}
+
+    def hook(info, vec_env):
+        if info.active[0]:
+            reported.setdefault(int(info.episode[0]), []).append(bool(info.habit[0]))
+
+    train(_tiny_train_config(seeds=(0, 1)), tmp_path / "run", progress=False, record_every=2, on_step=hook)
+    files = sorted((tmp_path / "run" / "recordings").glob("*.rrd"))
+    assert [f.name for f in files] == ["episode_000000.rrd", "episode_000002.rrd"]
+    for f in files:
+        entities, props, _ = R.read_recording(f)
+        episode = int(f.stem.split("_")[1])
+        steps = len(reported[episode])
+        assert len(entities[R.RENDER].times["frame"]) == steps + 1, "one frame per step plus the start pose"
+        _, controller = R.scalar_series(entities[R.CONTROLLER])
+        assert controller.tolist() == [R.HABIT if h else R.PLANNING for h in reported[episode]]
+        _, err = R.scalar_series(entities[R.KINEMATICS_ERROR])
+        assert np.max(err) <= 1e-9
+        assert set(entities[R.DISTANCE].times["episode"]) == {episode}
+        # a predicted arm after every step, and a clear at the start pose
+        assert len(entities[R.ARM_FORWARD_MODEL].times["frame"]) == steps + 1
+        assert props["task"] == ["changing_target"]
+
+
+def test_record_command_writes_rrd_and_video(tmp_path, capsys):
+    from apac_mj.cli import main
+
+    # mp4 keeps every frame; a GIF merges identical consecutive frames (adding their durations).
+    out, gif = tmp_path / "rollout.rrd", tmp_path / "rollout.mp4"
+    assert main(["record", "--task", "changing_target_occluded", "--agent", "apac", "--episodes", "2",
+                 "--out", str(out), "--video", str(gif)]) == 0
+    entities, props, blueprints = R.read_recording(out)
+    frames = len(entities[R.RENDER].times["frame"])
+    assert frames == len(list(iio.imiter(gif))) and frames >= 4
+    assert blueprints == 1 and props["agent.agent"] == ["apac"]
+    texts = [t[0] for t in entities[R.EVENTS].components["TextLog:text"]]
+    assert sum("starts: target" in t for t in texts) == 2 and any(t.startswith("occluded") for t in texts)
+    assert "KB per step" in capsys.readouterr().out
+
+
+def test_record_command_rejects_bad_arguments(tmp_path, capsys):
+    from apac_mj.cli import main
+
+    assert main(["record", "--episodes", "0", "--out", str(tmp_path / "x.rrd")]) == 2
+    assert "--episodes" in capsys.readouterr().err
+    assert main(["record", "--out", str(tmp_path / "x.mp4")]) == 2
+    assert main(["record", "--video", str(tmp_path / "x.avi"), "--out", str(tmp_path / "x.rrd")]) == 2
+    assert main(["record", "--run", str(tmp_path / "missing"), "--out", str(tmp_path / "x.rrd")]) == 2

@@ -1,0 +1,144 @@
+"""Cost of recording a step (render + JPEG + Rerun logging) as a fraction of a training step.
+
+    .venv/bin/python bench/record.py [--steps 150] [--repeats 3] [--seeds 1]
+
+One process, side by side on the same environment:
+
+* **training step**: what the trainer does per step for one ensemble of
+  ``--seeds`` members: both proposals (actor and inverse model), the forward
+  model's prediction, one environment step per member, the replay insert and
+  one ``Agent.update`` (batch 500 from a full replay memory, the paper's
+  networks);
+* **recording step**: what a recorded step adds: the MuJoCo offscreen render
+  (240 x 320), the JPEG encode and ``Recording.log_step`` (render, three arms,
+  path, ten time series, events) into a real .rrd file.
+
+Each figure is the best of ``--repeats`` timed blocks (least disturbed by
+other load on a shared machine). The goal is a ratio <= 10%. The bytes per
+recorded step are read off the .rrd file.
+"""
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import torch
+
+import apac_mj  # noqa: F401  (sets MUJOCO_GL before mujoco loads)
+from apac_mj import recording as R
+from apac_mj import render, suite
+from apac_mj.agent import Agent
+from apac_mj.config import AgentConfig
+
+
+def _state(env) -> np.ndarray:
+    p = env.physics
+    return np.concatenate([p.end_effector(), p.elbow(), p.target()])
+
+
+def _training_step(seeds: int) -> Callable[[], None]:
+    cfg = AgentConfig()
+    agent = Agent(cfg, seeds=list(range(seeds)))
+    envs = [suite.load("planar_arm", "changing_target", task_kwargs={"random": k}) for k in range(seeds)]
+    for env in envs:
+        env.reset()
+    rng = np.random.default_rng(0)
+    E, full = agent.E, torch.ones(agent.E, dtype=torch.bool)
+    for _ in range(cfg.replay_size):  # a full replay memory, so every update uses a whole batch
+        s = torch.as_tensor(rng.uniform(0, 30, (E, 6)), dtype=torch.float32)
+        agent.replay.add(s, torch.as_tensor(rng.uniform(-180, 180, (E, 2)), dtype=torch.float32),
+                         -torch.rand(E), s, torch.zeros(E), full)
+
+    def step() -> None:
+        s = torch.as_tensor(np.stack([_state(e) for e in envs]), dtype=torch.float32)
+        a = agent.actor_action(s) + agent.noise.sample()
+        agent.inverse_action(s)
+        agent.predict_arm(s[:, :4], a)
+        rewards = []
+        for env, ak in zip(envs, a.numpy().astype(np.float64)):
+            ts = env.step(ak)
+            rewards.append(ts.reward)
+            if ts.last():
+                env.reset()
+        s2 = torch.as_tensor(np.stack([_state(e) for e in envs]), dtype=torch.float32)
+        agent.replay.add(s, a, torch.tensor(rewards, dtype=torch.float32), s2, torch.zeros(E), full)
+        agent.update(full)
+
+    return step
+
+
+def _recording_step(path: Path) -> tuple[Callable[[], None], Callable[[], None], R.Recording]:
+    env = suite.load("planar_arm", "changing_target", task_kwargs={"random": 0})
+    rng = np.random.default_rng(1)
+    ts = env.reset()
+    renderer = render.Renderer(env.physics)
+    rec = R.recording_for_env(path, env, {"bench": "record"})
+    first = R.step_record_from_env(env, 0, ts)
+    rec.start_episode(0, first.target, first.link_lengths)
+    episode = [0]
+
+    def advance() -> None:  # the environment step itself is part of the training step, not timed here
+        nonlocal ts
+        if ts.last():
+            ts = env.reset()
+            episode[0] += 1
+            rec.start_episode(episode[0], env.physics.target(), env.physics.link_lengths())
+        ts = env.step(rng.uniform(-40, 40, size=2))
+
+    def record() -> None:
+        step = R.step_record_from_env(env, episode[0], ts, habit=bool(rng.integers(2)), delta=float(rng.normal()),
+                                      predicted_arm=first.true_arm)
+        rec.log_step(step, render.encode_jpeg(renderer.render()))
+
+    def close() -> None:
+        rec.close()
+        renderer.close()
+
+    return advance, record, close, rec  # type: ignore[return-value]
+
+
+def _best_ms(fn: Callable[[], None], steps: int, repeats: int, between: Callable[[], None] | None = None) -> float:
+    best = float("inf")
+    for _ in range(repeats):
+        total = 0.0
+        for _ in range(steps):
+            if between is not None:
+                between()
+            t = time.perf_counter()
+            fn()
+            total += time.perf_counter() - t
+        best = min(best, total / steps)
+    return best * 1e3
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--steps", type=int, default=150, help="timed steps per block (default 150)")
+    p.add_argument("--repeats", type=int, default=3, help="timed blocks per variant; the best counts (default 3)")
+    p.add_argument("--seeds", type=int, default=1, help="ensemble members in the training step (default 1)")
+    args = p.parse_args()
+    if args.steps < 1 or args.repeats < 1 or args.seeds < 1:
+        p.error("--steps, --repeats and --seeds must be >= 1")
+    torch.set_num_threads(1)
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "bench.rrd"
+        train = _training_step(args.seeds)
+        advance, record, close, rec = _recording_step(path)
+        train_ms = _best_ms(train, args.steps, args.repeats)
+        record_ms = _best_ms(record, args.steps, args.repeats, between=advance)
+        close()
+        size = path.stat().st_size
+        frames = rec.frames
+    print(f"torch threads: 1, ensemble members: {args.seeds}, steps per block: {args.steps}, best of {args.repeats}")
+    print(f"training step (proposals + env step + replay + update): {train_ms:8.2f} ms")
+    print(f"recording step (render + JPEG + log_step):              {record_ms:8.2f} ms")
+    print(f"recording / training step:                              {record_ms / train_ms:8.1%}  (goal <= 10%)")
+    print(f"bytes per recorded step (.rrd size / steps):            {size / frames:8.0f} B  ({frames} steps)")
+
+
+if __name__ == "__main__":
+    main()
