@@ -15,6 +15,8 @@ COMMAND_MODULES = [
     "apac_mj.commands.grid",
     "apac_mj.commands.report",
     "apac_mj.commands.check_kinematics",
+    "apac_mj.commands.train",
+    "apac_mj.commands.evaluate",
     "apac_mj.commands.record",
 ]
 
