@@ -21,13 +21,16 @@ from torch import nn
 
 from apac_mj.buffer import EnsembleReplay
 from apac_mj.config import AgentConfig
-from apac_mj.networks import build_actor, build_critic, build_forward_model, build_inverse_model
+from apac_mj.networks import (Workspace, act_backward_, build_actor, build_critic, build_forward_model,
+                              build_inverse_model, mlp_backward, mlp_forward)
 from apac_mj.noise import OUNoise
 from apac_mj.optim import EnsembleAdam
 
 PRECISIONS = ("fp32", "bf16")
 NETWORKS = ("actor", "critic", "forward_model", "inverse_model", "target_actor", "target_critic")
 LOSSES = ("critic", "actor", "forward", "inverse")
+#: Networks trained by the optimizer, in its group order.
+TRAINED = ("critic", "actor", "forward_model", "inverse_model")
 
 
 def member_generators(seed: int) -> tuple[torch.Generator, torch.Generator, torch.Generator]:
@@ -72,6 +75,24 @@ class Agent:
                             ((self.actor, self.target_actor), (self.critic, self.target_critic))
                             for t, o in zip(tnet.parameters(), net.parameters())]
         self._soft_views = [(t.unbind(0), o.unbind(0)) for t, o in self._soft_pairs]
+        self._init_workspace()
+
+    def _init_workspace(self) -> None:
+        """Weights as ``[(W, b), ...]`` per network, gradient buffers and (bf16) working copies."""
+        def pairs(tensors: list[torch.Tensor]) -> list[tuple[torch.Tensor, torch.Tensor]]:
+            return list(zip(tensors[0::2], tensors[1::2]))
+        self._dtype = torch.bfloat16 if self.precision == "bf16" else torch.float32
+        self._ws = Workspace(self.device)
+        self._params = {n: [p.detach() for p in getattr(self, n).parameters()] for n in NETWORKS}
+        self._grads = {n: [torch.zeros_like(p) for p in self._params[n]] for n in TRAINED}
+        if self._dtype == torch.float32:
+            self._work = self._params
+            self._work_grads = self._grads
+        else:
+            self._work = {n: [p.to(self._dtype) for p in ps] for n, ps in self._params.items()}
+            self._work_grads = {n: [g.to(self._dtype) for g in gs] for n, gs in self._grads.items()}
+        self._W = {n: pairs(ps) for n, ps in self._work.items()}
+        self._G = {n: pairs(gs) for n, gs in self._work_grads.items()}
 
     # -- inputs ----------------------------------------------------------------
     def _pos(self, x: torch.Tensor) -> torch.Tensor:
@@ -143,20 +164,128 @@ class Agent:
         if not members:
             return {name: nan.clone() for name in LOSSES}
         batch = self.replay.sample(self.cfg.batch_size, members)
+        if self._dtype != torch.float32:
+            torch._foreach_copy_([w for n in NETWORKS for w in self._work[n]],
+                                 [p for n in NETWORKS for p in self._params[n]])
+        with torch.no_grad():
+            losses = self._gradients(batch)
+        if self._dtype != torch.float32:
+            torch._foreach_copy_([g for n in TRAINED for g in self._grads[n]],
+                                 [g for n in TRAINED for g in self._work_grads[n]])
+        self.optimizer.step([self._grads[n] for n in TRAINED], members)
+        self._soft_update(members)
+        keep = torch.zeros(self.E, dtype=torch.bool, device=self.device)
+        keep[members] = True
+        return {name: torch.where(keep, loss, nan) for name, loss in losses.items()}
+
+    def _gradients(self, b: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        """Losses ``[E]`` of the four networks and their gradients (into ``self._grads``) by hand:
+        the same quantities as :meth:`_losses` + autograd, on preallocated buffers."""
+        cfg, dt, W, G = self.cfg, self._dtype, self._W, self._G
+        s, a, s2 = b["state"], b["action"], b["next_state"]
+        B = s.shape[1]
+        x, x2, a_in = self._pos(s).to(dt), self._pos(s2).to(dt), self._act(a).to(dt)
+        # TD target y = r + gamma (1 - done) Q'(s2, pi'(s2))
+        t_out = mlp_forward(self._ws, "target_actor", W["target_actor"], "relu", "tanh", x2)[-1]
+        a2_in = t_out if cfg.normalize_inputs else t_out * cfg.action_scale
+        q2 = self._critic_forward("target_critic", x2, a2_in)[2][..., 0].float()
+        y = b["reward"] + cfg.gamma * (1.0 - b["done"]) * q2
+        # critic
+        h1, h2, q = self._critic_forward("critic", x, a_in)
+        q32 = q[..., 0].float()
+        losses = {"critic": (y - q32).pow(2).mean(1)}
+        self._critic_backward(x, a_in, h1, h2, (2.0 / B) * (q32 - y)[..., None])
+        # actor: dQ(s, pi(s))/dpi through the critic's pre-update weights
+        losses["actor"] = self._actor_gradients(x, h2, B)
+        # forward model on the next observed arm position
+        f_in = self._ws.get("forward_model.in", (*x.shape[:2], 6), dt)
+        f_in[..., :4].copy_(x[..., :4])
+        f_in[..., 4:].copy_(a_in)
+        losses["forward"] = self._regression("forward_model", "sigmoid", f_in, s2[..., :4], cfg.plane_scale)
+        # inverse model in hindsight: (end_t, elbow_t, end_{t+1}) -> a_t
+        i_in = self._ws.get("inverse_model.in", (*x.shape[:2], 6), dt)
+        i_in[..., :4].copy_(x[..., :4])
+        i_in[..., 4:].copy_(x2[..., :2])
+        losses["inverse"] = self._regression("inverse_model", "relu", i_in, a, cfg.action_scale)
+        return losses
+
+    def _critic_forward(self, name: str, x: torch.Tensor, a_in: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """``h1 [E,B,400]``, ``h2 [E,B,600]`` (state half, action half) and ``Q [E,B,1]``."""
+        (w1, b1), (ws, bs), (wa, ba), (wo, bo) = self._W[name]
+        E, B, half = x.shape[0], x.shape[1], ws.shape[-1]
+        h1 = torch.baddbmm(b1, x, w1, out=self._ws.get(f"{name}.h1", (E, B, w1.shape[-1]), x.dtype)).relu_()
+        h2 = self._ws.get(f"{name}.h2", (E, B, 2 * half), x.dtype)
+        torch.baddbmm(bs, h1, ws, out=h2[..., :half]).relu_()
+        torch.baddbmm(ba, a_in, wa, out=h2[..., half:]).relu_()
+        q = torch.baddbmm(bo, h2, wo, out=self._ws.get(f"{name}.q", (E, B, 1), x.dtype))
+        return h1, h2, q
+
+    def _critic_backward(self, x: torch.Tensor, a_in: torch.Tensor, h1: torch.Tensor, h2: torch.Tensor,
+                         dq: torch.Tensor) -> None:
+        """Gradients of the critic loss given ``dq = dL/dQ`` ``[E,B,1]``."""
+        (w1, _), (ws, _), _, (wo, _) = self._W["critic"]
+        (g1, gb1), (gs, gbs), (ga, gba), (go, gbo) = self._G["critic"]
+        dq = dq.to(h2.dtype)
+        half = ws.shape[-1]
+        torch.bmm(h2.transpose(1, 2), dq, out=go)
+        torch.sum(dq, dim=1, keepdim=True, out=gbo)
+        dh2 = torch.mul(dq, wo.transpose(1, 2), out=self._ws.get("critic.dh2", h2.shape, h2.dtype))
+        act_backward_("relu", dh2, h2)
+        dzs, dza = dh2[..., :half], dh2[..., half:]
+        torch.bmm(a_in.transpose(1, 2), dza, out=ga)
+        torch.sum(dza, dim=1, keepdim=True, out=gba)
+        torch.bmm(h1.transpose(1, 2), dzs, out=gs)
+        torch.sum(dzs, dim=1, keepdim=True, out=gbs)
+        dh1 = torch.bmm(dzs, ws.transpose(1, 2), out=self._ws.get("critic.dh1", h1.shape, h1.dtype))
+        act_backward_("relu", dh1, h1)
+        torch.bmm(x.transpose(1, 2), dh1, out=g1)
+        torch.sum(dh1, dim=1, keepdim=True, out=gb1)
+
+    def _actor_gradients(self, x: torch.Tensor, h2: torch.Tensor, B: int) -> torch.Tensor:
+        """Actor loss ``-mean Q(s, pi(s))`` ``[E]``; its gradient into the actor's buffers."""
+        cfg, W = self.cfg, self._W
+        _, (ws, _), (wa, ba), (wo, bo) = W["critic"]
+        half = ws.shape[-1]
+        xs = mlp_forward(self._ws, "actor", W["actor"], "relu", "tanh", x)
+        pi_in = xs[-1] if cfg.normalize_inputs else xs[-1] * cfg.action_scale
+        h2pi = self._ws.get("actor.h2", h2.shape, h2.dtype)
+        h2pi[..., :half].copy_(h2[..., :half])
+        torch.baddbmm(ba, pi_in, wa, out=h2pi[..., half:]).relu_()
+        q_pi = torch.baddbmm(bo, h2pi, wo)[..., 0].float()
+        dza = self._ws.get("actor.dza", (*h2.shape[:2], half), h2.dtype)
+        dza.copy_((wo[:, half:].transpose(1, 2) * (-1.0 / B)).expand_as(dza))
+        act_backward_("relu", dza, h2pi[..., half:])
+        dpi = torch.bmm(dza, wa.transpose(1, 2), out=self._ws.get("actor.dpi", pi_in.shape, h2.dtype))
+        if not cfg.normalize_inputs:
+            dpi.mul_(cfg.action_scale)
+        mlp_backward(self._ws, "actor", W["actor"], "relu", "tanh", xs, dpi, self._G["actor"])
+        return -q_pi.mean(1)
+
+    def _regression(self, name: str, hidden_act: str, inputs: torch.Tensor, label: torch.Tensor,
+                    scale: float) -> torch.Tensor:
+        """MSE of ``scale * out_act(net(inputs))`` against ``label`` ``[E,B,D]``; gradients by hand."""
+        out_act = "sigmoid" if name == "forward_model" else "tanh"
+        xs = mlp_forward(self._ws, name, self._W[name], hidden_act, out_act, inputs)
+        err = xs[-1].float() * scale - label
+        grad = (err * (2.0 * scale / err[0].numel())).to(inputs.dtype)
+        mlp_backward(self._ws, name, self._W[name], hidden_act, out_act, xs, grad, self._G[name])
+        return err.pow(2).mean((1, 2))
+
+    def _update_autograd(self, active: torch.Tensor | Sequence[bool]) -> dict[str, torch.Tensor]:
+        """Reference update via autograd (tests compare :meth:`update` against it)."""
+        members = [k for k, on in enumerate(torch.as_tensor(active).bool().tolist())
+                   if on and self.replay.count[k] >= 1]
+        batch = self.replay.sample(self.cfg.batch_size, members)
         with self._autocast():
             losses = self._losses(batch)
-        params = [list(net.parameters()) for net in
-                  (self.critic, self.actor, self.forward_model, self.inverse_model)]
-        flat = [p for ps in params for p in ps]
+        params = [list(getattr(self, n).parameters()) for n in TRAINED]
         weight = torch.zeros(self.E, device=self.device)
         weight[members] = 1.0
         total = sum((loss * weight).sum() for loss in losses.values())
-        grads = torch.autograd.grad(total, flat)
-        it = iter(grads)
-        self.optimizer.step([[next(it) for _ in ps] for ps in params], members)
+        grads = iter(torch.autograd.grad(total, [p for ps in params for p in ps]))
+        self.optimizer.step([[next(grads) for _ in ps] for ps in params], members)
         self._soft_update(members)
-        keep = weight.bool()
-        return {name: torch.where(keep, loss.detach().float(), nan) for name, loss in losses.items()}
+        return {name: loss.detach().float() for name, loss in losses.items()}
 
     def _losses(self, b: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
         """Per-member losses ``[E]`` on a minibatch ``[E,B,...]``."""

@@ -134,3 +134,67 @@ def build_forward_model(hidden: Sequence[int], scale: float, gens: Sequence[torc
 def build_inverse_model(hidden: Sequence[int], scale: float, gens: Sequence[torch.Generator]) -> EnsembleMLP:
     """Inverse model: [end_t, elbow_t, end_{t+1}] (6) -> relu -> relu -> 2 x tanh x scale (degrees)."""
     return EnsembleMLP([6, *hidden, 2], "relu", "tanh", scale, gens)
+
+
+# -- allocation-free forward/backward for the update's hot path ---------------------
+#
+# Agent.update() computes all gradients by hand with out= ops on preallocated
+# buffers: no autograd graph, no allocations, no page faults. These helpers take
+# the weights explicitly ([(W, b), ...], possibly bf16 copies) and are checked
+# against autograd in tests/test_agent.py.
+
+_ACT_INPLACE: dict[str, Callable[[torch.Tensor], torch.Tensor]] = {
+    "relu": torch.relu_, "sigmoid": torch.sigmoid_, "tanh": torch.tanh_}
+
+
+def act_backward_(name: str, grad: torch.Tensor, out: torch.Tensor) -> torch.Tensor:
+    """In place ``grad <- grad * act'(.)`` given the activation's output ``out``."""
+    if name == "relu":
+        return torch.ops.aten.threshold_backward.grad_input(grad, out, 0, grad_input=grad)
+    if name == "sigmoid":
+        return torch.ops.aten.sigmoid_backward.grad_input(grad, out, grad_input=grad)
+    if name == "tanh":
+        return torch.ops.aten.tanh_backward.grad_input(grad, out, grad_input=grad)
+    raise ValueError(f"unknown activation {name!r}")
+
+
+class Workspace:
+    """Preallocated tensors reused across updates, keyed by name."""
+
+    def __init__(self, device: torch.device) -> None:
+        self.device, self.buffers = device, {}
+
+    def get(self, name: str, shape: Sequence[int], dtype: torch.dtype) -> torch.Tensor:
+        t = self.buffers.get(name)
+        if t is None or tuple(t.shape) != tuple(shape) or t.dtype != dtype:
+            t = self.buffers[name] = torch.empty(tuple(shape), dtype=dtype, device=self.device)
+        return t
+
+
+def mlp_forward(ws: Workspace, key: str, weights: Sequence[tuple[torch.Tensor, torch.Tensor]],
+                hidden_act: str, out_act: str, x: torch.Tensor) -> list[torch.Tensor]:
+    """Layer inputs and the squashed (unscaled) output: ``[x, h1, ..., out_act(z_n)]``."""
+    xs = [x]
+    n = len(weights)
+    for i, (w, b) in enumerate(weights):
+        z = ws.get(f"{key}.h{i}", (*x.shape[:2], w.shape[-1]), x.dtype)
+        torch.baddbmm(b, xs[-1], w, out=z)
+        _ACT_INPLACE[hidden_act if i < n - 1 else out_act](z)
+        xs.append(z)
+    return xs
+
+
+def mlp_backward(ws: Workspace, key: str, weights: Sequence[tuple[torch.Tensor, torch.Tensor]],
+                 hidden_act: str, out_act: str, xs: Sequence[torch.Tensor], grad: torch.Tensor,
+                 grads: Sequence[tuple[torch.Tensor, torch.Tensor]], input_grad: bool = False) -> torch.Tensor | None:
+    """Backpropagate ``grad`` (w.r.t. the squashed output, overwritten) into ``grads`` [(gW, gb)]."""
+    n = len(weights)
+    for i in reversed(range(n)):
+        act_backward_(hidden_act if i < n - 1 else out_act, grad, xs[i + 1])
+        torch.bmm(xs[i].transpose(1, 2), grad, out=grads[i][0])
+        torch.sum(grad, dim=1, keepdim=True, out=grads[i][1])
+        if i == 0 and not input_grad:
+            return None
+        w = weights[i][0]
+        grad = torch.bmm(grad, w.transpose(1, 2), out=ws.get(f"{key}.d{i}", xs[i].shape, grad.dtype))
+    return grad

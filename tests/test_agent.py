@@ -200,3 +200,21 @@ def test_learning_sanity_forward_and_inverse_models():
     # the sigmoid forward model at the paper's lr 0.01 learns slowly (docs/agent.md); require progress only
     assert last["forward"][0] < 0.8 * first["forward"][0]
     assert last["inverse"][0] < 0.1 * first["inverse"][0]
+
+
+@pytest.mark.parametrize("normalize", [False, True])
+def test_hand_gradients_match_autograd(normalize):
+    cfg = small_cfg(normalize_inputs=normalize)
+    fused, ref = Agent(cfg, [0, 1, 2]), Agent(cfg, [0, 1, 2])
+    data = transitions(3, 4)
+    for t, (s, a, r, s2, d) in enumerate(data):
+        active = [True, t != 1, True]
+        for ag in (fused, ref):
+            ag.replay.add(s, a, r, s2, d, [True] * 3)
+        lf, lr = fused.update(active), ref._update_autograd(active)
+        for name in LOSSES:
+            k = [i for i in range(3) if active[i]]
+            torch.testing.assert_close(lf[name][k], lr[name][k], rtol=1e-5, atol=1e-5)
+    for k in range(3):
+        for p, q in zip(params_of(fused, k), params_of(ref, k)):
+            torch.testing.assert_close(p, q, rtol=1e-5, atol=1e-6)
