@@ -99,7 +99,7 @@ def evaluate(run_dir: str | Path, protocols: Sequence[str] = ("grid", "occluded"
                                                              "reason": "DDPG has no forward model to move on"}
             continue
         reg = "test" if protocol == "generalization" else region
-        targets = test_targets(spec, lengths, own, grid_only=protocol == "generalization", region=reg)
+        targets = evaluation_targets(spec, lengths, own, grid_only=protocol == "generalization", region=reg)
         targets = [t[:limit] for t in targets] if limit is not None else targets
         rows = run_protocol(cfg, agent, spec, lengths, targets, occluded=protocol == "occluded",
                             progress=progress, on_step=on_step, on_episode_start=on_episode_start)
@@ -113,7 +113,7 @@ def evaluate(run_dir: str | Path, protocols: Sequence[str] = ("grid", "occluded"
     return summary
 
 
-def test_targets(spec: TaskSpec, lengths: np.ndarray, own: list[Any], grid_only: bool = False,
+def evaluation_targets(spec: TaskSpec, lengths: np.ndarray, own: list[Any], grid_only: bool = False,
                  region: str | None = None) -> list[np.ndarray]:
     """Per member ``[n_k, 2]`` targets: the angle grid at its lengths (or its own static target x100).
 

@@ -1,0 +1,131 @@
+"""Frozen-network tests: output files, time-cost arithmetic, targets, and the occluded protocol's blindness."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+
+from apac_mj.config import AgentConfig, TrainConfig
+from apac_mj.evaluate import COLUMNS, evaluate, evaluation_targets, time_cost
+from apac_mj.kinematics import angle_grid, motion_function
+from apac_mj.suite import load_spec
+from apac_mj.trainer import train
+
+torch.set_num_threads(1)
+
+TINY = dict(actor_hidden=(16, 16), critic_hidden=(16, 16), forward_hidden=(16, 16), inverse_hidden=(16, 16),
+            batch_size=8, replay_size=64, babbling_episodes=1, planning_episodes=2)
+
+
+def _train(tmp_path_factory, agent: str, task: str = "changing_target"):
+    cfg = TrainConfig(task=task, seeds=(0, 1), episodes=3, checkpoint_every=3, actuation="kinematic",
+                      agent=AgentConfig(agent=agent, **TINY))
+    return train(cfg, tmp_path_factory.mktemp(f"{agent}_{task}"), progress=False)
+
+
+@pytest.fixture(scope="module")
+def apac_run(tmp_path_factory):
+    return _train(tmp_path_factory, "apac")
+
+
+def test_time_cost_arithmetic():
+    assert time_cost(0, 0) == 0
+    assert time_cost(2, 0) == 2
+    assert time_cost(2, 3) == 11  # planning costs 3, habit 1
+
+
+def test_grid_outputs_and_summary(apac_run):
+    summary = evaluate(apac_run, protocols=("grid",), limit=10)
+    df = pd.read_parquet(apac_run / "eval" / "grid.parquet")
+    assert list(df.columns) == list(COLUMNS) + ["path_x", "path_y"]
+    assert len(df) == 20 and sorted(df.seed.unique()) == [0, 1]
+    assert (df.time_cost == df.habit_actions + 3 * df.planning_actions).all()
+    assert (df.steps == df.habit_actions + df.planning_actions).all()
+    assert (df.success == (df.final_distance <= 0.5)).all()
+    assert ((df.steps >= 1) & (df.steps <= 30)).all()
+    assert all(len(x) == s + 1 for x, s in zip(df.path_x, df.steps))
+    # Grid targets: angle grid through the motion function at the (static) lengths (5, 8).
+    g = angle_grid()[:10]
+    end, _ = motion_function(g[:, 0], g[:, 1], 5.0, 8.0)
+    np.testing.assert_allclose(df[df.seed == 0][["target_x", "target_y"]].to_numpy(), end, atol=1e-9)
+    s = summary["protocols"]["grid"]
+    assert s["success_rate"] == pytest.approx(df.success.mean())
+    assert s["mean_time_cost"] == pytest.approx(df.time_cost.mean())
+    on_disk = json.loads((apac_run / "eval" / "summary.json").read_text())
+    assert on_disk["protocols"]["grid"]["episodes"] == 20
+
+
+def test_frozen_evaluation_is_deterministic_and_changes_nothing(apac_run):
+    before = (apac_run / "checkpoints" / "latest.pt").read_bytes()
+    evaluate(apac_run, protocols=("grid",), limit=5)
+    a = pd.read_parquet(apac_run / "eval" / "grid.parquet")
+    evaluate(apac_run, protocols=("grid",), limit=5)
+    b = pd.read_parquet(apac_run / "eval" / "grid.parquet")
+    pd.testing.assert_frame_equal(a, b, check_exact=True)
+    assert (apac_run / "checkpoints" / "latest.pt").read_bytes() == before
+
+
+def test_occluded_protocol_acts_on_forward_model_only(apac_run):
+    infos = []
+    evaluate(apac_run, protocols=("occluded",), limit=4, on_step=lambda info, env: infos.append(info))
+    df = pd.read_parquet(apac_run / "eval" / "occluded.parquet")
+    assert len(df) == 8 and "path_x" not in df.columns
+    prev = None
+    for info in infos:
+        act = info.active
+        assert not info.vision[act].any(), "the agent saw something after step 0"
+        if prev is not None and (info.step[act] > 0).all():
+            # The state acted on is the previous step's integrated estimate = the forward model's prediction,
+            # and the target is the one remembered from step 0.
+            np.testing.assert_array_equal(info.state[act, :4], prev.predicted_arm[act, :4])
+            np.testing.assert_array_equal(info.state[act, 4:], prev.state[act, 4:])
+        prev = info
+    first = [i for i in infos if (i.step[i.active] == 0).all()]
+    assert first and all(np.allclose(i.state[i.active, 4:], i.target[i.active], atol=1e-5) for i in first)
+    # The arm stops when its estimate is inside the zone (or at 30 steps); the true distance is recorded.
+    last_est = {}
+    for info in infos:
+        for k in np.flatnonzero(info.active):
+            last_est[(int(info.episode[k]), k)] = (info.terminal[k], int(info.step[k]) + 1)
+    for (ep, k), (terminal, steps) in last_est.items():
+        assert terminal or steps == 30
+    assert (df.success == (df.final_distance <= 0.5)).all()
+
+
+def test_generalization_targets_lie_in_test_region(apac_run):
+    evaluate(apac_run, protocols=("generalization",))
+    df = pd.read_parquet(apac_run / "eval" / "generalization.parquet")
+    y_min = load_spec("changing_target").region.test_y_min
+    assert len(df) > 0 and (df.target_y >= y_min).all()
+    assert len(df[df.seed == 0]) < 100
+
+
+def test_static_target_runs_test_their_own_target(tmp_path_factory):
+    run = _train(tmp_path_factory, "spac", "static_target")
+    spec = load_spec("static_target")
+    targets = evaluation_targets(spec, np.array([[5.0, 8.0]]), [np.array([20.0, 21.0])])
+    assert targets[0].shape == (100, 2) and (targets[0] == [20.0, 21.0]).all()
+    evaluate(run, protocols=("grid",), limit=3)
+    df = pd.read_parquet(run / "eval" / "grid.parquet")
+    metrics = pd.read_parquet(run / "metrics.parquet")
+    for seed in (0, 1):
+        own = metrics[(metrics.seed == seed) & (metrics.phase == "train")][["target_x", "target_y"]].iloc[0]
+        np.testing.assert_allclose(df[df.seed == seed][["target_x", "target_y"]].to_numpy(),
+                                   np.repeat(own.to_numpy()[None], 3, 0))
+
+
+def test_ddpg_occluded_not_applicable(tmp_path_factory):
+    run = _train(tmp_path_factory, "ddpg")
+    s = evaluate(run, protocols=("occluded",))
+    assert s["protocols"]["occluded"]["applicable"] is False
+    assert not (run / "eval" / "occluded.parquet").exists()
+
+
+def test_bad_arguments(apac_run, tmp_path):
+    with pytest.raises(ValueError, match="unknown protocol"):
+        evaluate(apac_run, protocols=("nope",))
+    with pytest.raises(FileNotFoundError, match="not a run directory"):
+        evaluate(tmp_path, protocols=("grid",))
