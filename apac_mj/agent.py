@@ -188,13 +188,13 @@ class Agent:
         # TD target y = r + gamma (1 - done) Q'(s2, pi'(s2))
         t_out = mlp_forward(self._ws, "target_actor", W["target_actor"], "relu", "tanh", x2)[-1]
         a2_in = t_out if cfg.normalize_inputs else t_out * cfg.action_scale
-        q2 = self._critic_forward("target_critic", x2, a2_in)[2][..., 0].float()
+        q2 = self._critic_forward("target_critic", x2, a2_in)[2].float()
         y = b["reward"] + cfg.gamma * (1.0 - b["done"]) * q2
         # critic
         h1, h2, q = self._critic_forward("critic", x, a_in)
-        q32 = q[..., 0].float()
+        q32 = q.float()
         losses = {"critic": (y - q32).pow(2).mean(1)}
-        self._critic_backward(x, a_in, h1, h2, (2.0 / B) * (q32 - y)[..., None])
+        self._critic_backward(x, a_in, h1, h2, (2.0 / B) * (q32 - y))
         # actor: dQ(s, pi(s))/dpi through the critic's pre-update weights
         losses["actor"] = self._actor_gradients(x, h2, B)
         # forward model on the next observed arm position
@@ -217,21 +217,24 @@ class Agent:
         h2 = self._ws.get(f"{name}.h2", (E, B, 2 * half), x.dtype)
         torch.baddbmm(bs, h1, ws, out=h2[..., :half]).relu_()
         torch.baddbmm(ba, a_in, wa, out=h2[..., half:]).relu_()
-        q = torch.baddbmm(bo, h2, wo, out=self._ws.get(f"{name}.q", (E, B, 1), x.dtype))
-        return h1, h2, q
+        return h1, h2, _q_head(bo, h2, wo, self._ws.get(f"{name}.q", (E, 1, B), x.dtype))
 
     def _critic_backward(self, x: torch.Tensor, a_in: torch.Tensor, h1: torch.Tensor, h2: torch.Tensor,
                          dq: torch.Tensor) -> None:
-        """Gradients of the critic loss given ``dq = dL/dQ`` ``[E,B,1]``."""
+        """Gradients of the critic loss given ``dq = dL/dQ`` ``[E,B]``."""
         (w1, _), (ws, _), _, (wo, _) = self._W["critic"]
         (g1, gb1), (gs, gbs), (ga, gba), (go, gbo) = self._G["critic"]
         dq = dq.to(h2.dtype)
         half = ws.shape[-1]
-        torch.bmm(h2.transpose(1, 2), dq, out=go)
-        torch.sum(dq, dim=1, keepdim=True, out=gbo)
-        dh2 = torch.mul(dq, wo.transpose(1, 2), out=self._ws.get("critic.dh2", h2.shape, h2.dtype))
-        act_backward_("relu", dh2, h2)
-        dzs, dza = dh2[..., :half], dh2[..., half:]
+        # row-vector products ([E,1,B] @ [E,B,600]) are several times faster than [E,600,B] @ [E,B,1]
+        torch.bmm(dq[:, None], h2, out=go.view(go.shape[0], 1, -1))
+        torch.sum(dq, dim=1, keepdim=True, out=gbo.view(-1, 1))
+        # the two halves of dL/dh2 in separate contiguous buffers (strided bf16 GEMM inputs are slow)
+        dq3, wo_t, shape = dq[..., None], wo.transpose(1, 2), (*h2.shape[:2], half)
+        dzs = torch.mul(dq3, wo_t[..., :half], out=self._ws.get("critic.dzs", shape, h2.dtype))
+        dza = torch.mul(dq3, wo_t[..., half:], out=self._ws.get("critic.dza", shape, h2.dtype))
+        act_backward_("relu", dzs, h2[..., :half])
+        act_backward_("relu", dza, h2[..., half:])
         torch.bmm(a_in.transpose(1, 2), dza, out=ga)
         torch.sum(dza, dim=1, keepdim=True, out=gba)
         torch.bmm(h1.transpose(1, 2), dzs, out=gs)
@@ -251,7 +254,7 @@ class Agent:
         h2pi = self._ws.get("actor.h2", h2.shape, h2.dtype)
         h2pi[..., :half].copy_(h2[..., :half])
         torch.baddbmm(ba, pi_in, wa, out=h2pi[..., half:]).relu_()
-        q_pi = torch.baddbmm(bo, h2pi, wo)[..., 0].float()
+        q_pi = _q_head(bo, h2pi, wo, self._ws.get("actor.q", (h2.shape[0], 1, B), h2.dtype)).float()
         dza = self._ws.get("actor.dza", (*h2.shape[:2], half), h2.dtype)
         dza.copy_((wo[:, half:].transpose(1, 2) * (-1.0 / B)).expand_as(dza))
         act_backward_("relu", dza, h2pi[..., half:])
@@ -337,6 +340,11 @@ class Agent:
         self.optimizer.load_state_dict(d["optimizer"])
         self.replay.load_state_dict(d["replay"])
         self.noise.load_state_dict(d["noise"])
+
+
+def _q_head(bo: torch.Tensor, h2: torch.Tensor, wo: torch.Tensor, out: torch.Tensor) -> torch.Tensor:
+    """``Q = h2 @ wo + bo`` as a row-vector product ``wo^T h2^T`` (fast): ``[E,B]``."""
+    return torch.baddbmm(bo, wo.transpose(1, 2), h2.transpose(1, 2), out=out)[:, 0]
 
 
 def _frozen_copy(net: nn.Module) -> nn.Module:

@@ -4,15 +4,17 @@ For each ensemble size E and precision the script
 1. builds an Agent at the paper's sizes with a full replay memory (1000),
 2. records every matrix product (mm/bmm/baddbmm/addmm, forward and backward)
    that one update dispatches, with its shapes, strides and dtypes,
-3. times, interleaved in rounds, the full update and a replay of exactly those
-   matrix products on random tensors of the same layout ("roofline"),
+3. times, round-robin over all cases in several rounds (the machine is shared:
+   load hits all cases alike; the best round is kept), the full update and a
+   replay of exactly those matrix products on random tensors of the same
+   layout ("roofline"),
 and prints ms per update per seed, the ratio update / matmuls-only, and each
 per-seed time relative to the fp32 E=1 update.
 
 Goals (issue 3): fp32 E=1 update <= 1.2x its matmuls; bf16 E=50 per seed
 <= 0.3x fp32 E=1.
 
-    .venv/bin/python bench/update_step.py [--sizes 1 10 50] [--precisions fp32 bf16]
+    .venv/bin/python bench/update_step.py [--sizes 1 10 50] [--precisions fp32 bf16] [--threads 1]
 """
 from __future__ import annotations
 
@@ -20,6 +22,7 @@ import argparse
 import time
 
 import torch
+from tqdm import tqdm
 from torch.utils._python_dispatch import TorchDispatchMode
 
 from apac_mj.agent import Agent
@@ -81,42 +84,59 @@ def _flops(func, meta) -> float:
     return 2.0 * batch * a[-2] * a[-1] * b[-1]
 
 
-def best_ms(fn, reps: int) -> float:
+def mean_ms(fn, reps: int) -> float:
     start = time.perf_counter()
     for _ in range(reps):
         fn()
     return (time.perf_counter() - start) / reps * 1e3
 
 
-def bench(E: int, precision: str, rounds: int, budget_s: float) -> dict:
-    agent = make_agent(E, precision)
-    active = [True] * E
-    update = lambda: agent.update(active)  # noqa: E731
-    for _ in range(3):
-        update()
-    run, n, flops = matmul_replay(agent, active)
-    run()
-    reps = max(1, int(budget_s / rounds / (best_ms(update, 1) / 1e3)))
-    up, mm = [], []
-    for _ in range(rounds):
-        up.append(best_ms(update, reps))
-        mm.append(best_ms(run, reps))
-    return {"E": E, "precision": precision, "update_ms": min(up) / E, "matmul_ms": min(mm) / E,
-            "n_matmuls": n, "gflop_per_seed": flops / E / 1e9}
+class Case:
+    """One (E, precision): the agent's update and the replay of its matrix products."""
+
+    def __init__(self, E: int, precision: str, slot_s: float) -> None:
+        self.E, self.precision = E, precision
+        agent = make_agent(E, precision)
+        active = [True] * E
+        self.update = lambda: agent.update(active)  # noqa: E731
+        for _ in range(3):
+            self.update()
+        self.matmuls, self.n, self.flops = matmul_replay(agent, active)
+        self.matmuls()
+        self.reps = max(1, int(slot_s / (mean_ms(self.update, 1) / 1e3)))
+        self.up: list[float] = []
+        self.mm: list[float] = []
+
+    def round(self) -> None:
+        self.up.append(mean_ms(self.update, self.reps))
+        self.mm.append(mean_ms(self.matmuls, self.reps))
+
+    def row(self) -> dict:
+        return {"E": self.E, "precision": self.precision, "update_ms": min(self.up) / self.E,
+                "matmul_ms": min(self.mm) / self.E, "n_matmuls": self.n, "gflop_per_seed": self.flops / self.E / 1e9}
+
+
+def bench(sizes: list[int], precisions: list[str], rounds: int, slot_s: float) -> list[dict]:
+    """All cases timed round-robin (so machine load hits them alike); the best round is kept."""
+    cases = [Case(E, p, slot_s) for p in precisions for E in sizes]
+    for _ in tqdm(range(rounds), desc="rounds"):
+        for case in cases:
+            case.round()
+    return [c.row() for c in cases]
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--sizes", type=int, nargs="+", default=[1, 10, 50], help="ensemble sizes E")
     p.add_argument("--precisions", nargs="+", default=["fp32", "bf16"], choices=["fp32", "bf16"])
-    p.add_argument("--rounds", type=int, default=5, help="interleaved timing rounds (best is kept)")
-    p.add_argument("--budget", type=float, default=6.0, help="seconds of timing per configuration")
-    p.add_argument("--threads", type=int, default=0, help="torch threads (0: leave default)")
+    p.add_argument("--rounds", type=int, default=8, help="round-robin timing rounds (best is kept)")
+    p.add_argument("--slot", type=float, default=0.3, help="seconds per timing slot (at least one update)")
+    p.add_argument("--threads", type=int, default=1, help="torch threads (0: leave torch's default)")
     args = p.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
     print(f"torch {torch.__version__}, threads {torch.get_num_threads()}")
-    rows = [bench(E, prec, args.rounds, args.budget) for prec in args.precisions for E in args.sizes]
+    rows = bench(args.sizes, args.precisions, args.rounds, args.slot)
     ref = next((r["update_ms"] for r in rows if r["E"] == 1 and r["precision"] == "fp32"), None)
     print(f"{'prec':>5} {'E':>4} {'update ms/seed':>15} {'matmul ms/seed':>15} {'update/matmul':>14} "
           f"{'vs fp32 E=1':>12} {'#mm':>5} {'GFLOP/seed':>10}")
