@@ -16,6 +16,12 @@ batched loop until every member finished ``cfg.episodes`` training episodes.
 * After every environment step: store ``(s_t, a_t, r_t, s_{t+1}, terminal)``
   for the stepping members, then one ``agent.update(active)``. The
   arbitrator's ``delta`` for the next step is this transition's TD error.
+* The stored ``a_t`` is the *executed* action: the joint-angle change the
+  plant actually made (Algorithm 2: "the actual action that transferred the
+  plant from X_t to X_{t+1}"). A command beyond a joint limit is clamped by
+  the plant; storing the command instead teaches the inverse model that
+  saturated commands (e.g. (-180, +180) at the start pose (0, 180)) move
+  nothing, a fixed point the paper-sized networks fall into and never leave.
 * Occluded vision during training: the integrator uses the forward model's
   prediction wherever ``vision`` is 0 and the agent learns from the reward of
   its own estimate (see :mod:`apac_mj.rollout`). The paper trains with
@@ -179,11 +185,13 @@ def _step(cfg: TrainConfig, loop: LoopState, active: np.ndarray, env: VecEnv, ag
                                   active, explore=True)
     if babbling.any():
         action, habit = _babbling_action(cfg, action, habit, babbling, babble_gens)
+    angles_before = env.joint_angles()
     info = agent_step(agent, arbitrator, env, loop.state, loop.episode, loop.step, loop.last_delta, active,
                       action=action, habit=habit)
     s, s2, r, done = _transition(info, babbling)
     dev = agent.device
-    agent.replay.add(torch.as_tensor(s, device=dev), action, torch.as_tensor(r, device=dev),
+    executed = torch.as_tensor(info.joint_angles - angles_before, dtype=torch.float32, device=dev)
+    agent.replay.add(torch.as_tensor(s, device=dev), executed, torch.as_tensor(r, device=dev),
                      torch.as_tensor(s2, device=dev), torch.as_tensor(done, device=dev), torch.as_tensor(active))
     for _ in range(cfg.agent.updates_per_step):
         agent.update(torch.as_tensor(active))
