@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import subprocess
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -67,7 +67,7 @@ FIELD_PX_PER_CM = 5
 #: Spacing of the contour bands in the distance field (cm).
 CONTOUR_CM = 2.0
 
-_BLACK, _GREY = (20, 20, 20), (150, 150, 150)
+_BLACK, _GREY, _PURPLE = (20, 20, 20), (170, 170, 170), (170, 90, 230)
 _ORANGE, _GREEN, _RED, _BLUE = (255, 140, 0), (30, 170, 60), (220, 30, 30), (30, 80, 240)
 
 
@@ -77,8 +77,9 @@ class StepRecord:
 
     ``true_arm`` is ``[end_x, end_y, elbow_x, elbow_y]`` read from MuJoCo's
     sites; ``predicted_arm`` is the forward model's prediction of it (NaN where
-    the agent made none); ``delta`` is the TD error that the arbitrator used
-    (NaN where none); ``habit`` says whether the actor acted.
+    the agent made none); ``delta`` is this transition's TD error, which the
+    arbitrator weighs at the next step (NaN where none); ``habit`` says
+    whether the actor acted.
     """
 
     episode: int
@@ -141,13 +142,16 @@ def git_commit(repo: Path | None = None) -> str:
 def default_blueprint(plane_size: Sequence[float] = (30.0, 30.0)) -> rrb.Blueprint:
     """Render | plane view | time series side by side, with the events log under the render."""
     w, h = plane_size
+
+    def view(name: str, *paths: str) -> rrb.TimeSeriesView:
+        return rrb.TimeSeriesView(origin="series", contents=[f"+ {p}" for p in paths], name=name)
+
     series = rrb.Vertical(
-        rrb.TimeSeriesView(origin="series", contents=[f"+ {DISTANCE}", f"+ {REWARD}"], name="distance, reward"),
+        view("distance, reward", DISTANCE, REWARD),
         rrb.TimeSeriesView(origin="series/arbitration", name="|delta| vs threshold, controller (1 habit, 0 planning)"),
-        rrb.TimeSeriesView(origin="series", contents=[f"+ {FORWARD_ERROR}", f"+ {KINEMATICS_ERROR}"],
-                           name="forward-model error, kinematics error (cm)"),
-        rrb.TimeSeriesView(origin="series", contents=[f"+ {L1}", f"+ {L2}", f"+ {VISION}"],
-                           name="link lengths, vision"),
+        view("forward-model error (cm), vision (1 seen, 0 occluded)", FORWARD_ERROR, VISION),
+        view("kinematics error: max |MuJoCo - motion function| (cm)", KINEMATICS_ERROR),
+        view("link lengths (cm)", L1, L2),
     )
     return rrb.Blueprint(
         rrb.Horizontal(
@@ -157,7 +161,8 @@ def default_blueprint(plane_size: Sequence[float] = (30.0, 30.0)) -> rrb.Bluepri
                 row_shares=[3, 1],
             ),
             # Origin "/" so that the plane entity's y-flip applies (a view's own origin transform is ignored).
-            rrb.Spatial2DView(origin="/", contents=f"+ {PLANE}/**", name="plane (cm): MuJoCo / motion function / forward model",
+            rrb.Spatial2DView(origin="/", contents=f"+ {PLANE}/**",
+                              name="plane (cm): MuJoCo black, motion function orange, forward model dashed green",
                               visual_bounds=rrb.VisualBounds2D(x_range=[0, w], y_range=[0, h])),
             series,
             column_shares=[1, 1.2, 1.2],
@@ -228,8 +233,8 @@ class Recording:
         self._series: dict[str, list[tuple[int, int, int, float]]] = {}
         # Batch generously: a file gains nothing from low latency, and every chunk carries its own schema.
         batching = rr.ChunkBatcherConfig(flush_tick=BATCH_SECONDS, flush_num_bytes=BATCH_BYTES)
-        self._stream = rr.RecordingStream(APPLICATION_ID, recording_id=name, make_default=False,
-                                          batcher_config=batching)
+        # A fresh random recording id (Rerun's default): two files opened together never merge.
+        self._stream = rr.RecordingStream(APPLICATION_ID, make_default=False, batcher_config=batching)
         self._stream.save(str(self.path), default_blueprint=default_blueprint(self.plane_size))
         self._stream.send_recording_name(name)
         self._send_properties(config or {})
@@ -250,10 +255,10 @@ class Recording:
         w = self.plane_size[0]
         border = np.array([[0, 0], [w, 0], [w, h], [0, h], [0, 0]], dtype=np.float64)
         s.log(BORDER, rr.LineStrips2D([border], colors=[_GREY], radii=[0.05]), static=True)
-        s.log(SHOULDER, rr.Points2D([self.origin], radii=[0.3], colors=[_BLACK], labels=["shoulder"]), static=True)
+        s.log(SHOULDER, rr.Points2D([self.origin], radii=[0.35], colors=[_BLACK]), static=True)
         styles = {
             REWARD: _ORANGE, DISTANCE: _BLUE, ABS_DELTA: _ORANGE, DELTA_THRESHOLD: _GREY, CONTROLLER: _GREEN,
-            FORWARD_ERROR: _GREEN, KINEMATICS_ERROR: _RED, L1: _BLACK, L2: _GREY, VISION: _BLUE,
+            FORWARD_ERROR: _GREEN, KINEMATICS_ERROR: _RED, L1: _PURPLE, L2: _GREY, VISION: _BLUE,
         }
         for path, color in styles.items():
             s.log(path, rr.SeriesLines(colors=[color], names=[path.rsplit("/", 1)[-1]]), static=True)

@@ -1,6 +1,9 @@
 """Recordings read back from .rrd files: entity paths, one frame per step, physics vs motion function."""
 from __future__ import annotations
 
+import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import imageio.v3 as iio
@@ -54,6 +57,15 @@ def test_recording_holds_every_entity_path_and_one_frame_per_step(changing_targe
     blob = entities[R.RENDER].components["EncodedImage:blob"][0]
     frame = iio.imread(bytes(blob[0]), extension=".jpg")
     assert frame.shape == (*render.FRAME_SHAPE, 3)
+
+
+def test_rerun_rrd_verify_accepts_the_file(changing_target):
+    rerun_cli = Path(sys.executable).parent / "rerun"
+    if not rerun_cli.is_file():
+        rerun_cli = Path(shutil.which("rerun") or "rerun")
+    out = subprocess.run([str(rerun_cli), "rrd", "verify", str(changing_target[0])], capture_output=True,
+                         text=True, timeout=120)
+    assert out.returncode == 0, out.stdout + out.stderr
 
 
 def test_kinematics_error_is_below_1e9_throughout(changing_target):
