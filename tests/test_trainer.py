@@ -120,3 +120,32 @@ def test_bad_config_values(tmp_path):
         train(tiny_config(seeds=(1, 1)), tmp_path / "a", progress=False)
     with pytest.raises(KeyError, match="unknown task"):
         train(tiny_config(task="no_such_task"), tmp_path / "b", progress=False)
+
+
+def test_cli_train_then_evaluate(tmp_path, capsys):
+    from apac_mj.cli import main
+
+    run = tmp_path / "cli_run"
+    args = ["train", "--task", "static_target", "--agent", "spac", "--seeds", "2-3", "--episodes", "2",
+            "--out", str(run), "--actuation", "kinematic", "--checkpoint-every", "1", "--no-progress"]
+    tiny = [f"--set={k}={','.join(map(str, v)) if isinstance(v, tuple) else v}" for k, v in TINY.items()]
+    assert main(args + tiny) == 0
+    assert json.loads((run / "config.json").read_text())["seeds"] == [2, 3]
+    assert main(args + tiny) == 0  # finished run: returns at once
+    assert main(["evaluate", str(run), "--limit", "2", "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    assert '"success_rate"' in out and (run / "eval" / "grid.parquet").is_file()
+    assert main(["train", "--seeds", "3-1", "--out", str(tmp_path / "x")]) == 2
+    assert "--seeds must be" in capsys.readouterr().err
+    assert main(args[:-1] + ["--set", "no_such=1"]) == 2
+
+
+def test_parse_seeds():
+    from apac_mj.commands.train import parse_seeds
+
+    assert parse_seeds("0-3") == (0, 1, 2, 3)
+    assert parse_seeds("0,3,5") == (0, 3, 5)
+    assert parse_seeds("7") == (7,)
+    for bad in ("a", "3-1", "1,1", "-2"):
+        with pytest.raises(ValueError, match="--seeds"):
+            parse_seeds(bad)
