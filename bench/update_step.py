@@ -145,6 +145,10 @@ def main() -> None:
         print(f"{r['precision']:>5} {r['E']:>4} {r['update_ms']:15.3f} {r['matmul_ms']:15.3f} "
               f"{r['update_ms'] / r['matmul_ms']:14.3f} {rel} {r['n_matmuls']:>5} {r['gflop_per_seed']:10.3f}")
     print("goals: fp32 E=1 update/matmul <= 1.2; bf16 E=50 'vs fp32 E=1' <= 0.3")
+    best = next((r for r in rows if r["E"] == max(args.sizes) and r["precision"] == "bf16"), None)
+    if ref and best:
+        print(f"bound: bf16 E={best['E']} matmuls alone / fp32 E=1 update = {best['matmul_ms'] / ref:.3f} "
+              "(no implementation of these products can beat this ratio on this machine)")
 
 
 if __name__ == "__main__":

@@ -79,8 +79,11 @@ def test_member_without_samples_is_skipped():
     assert agent.optimizer.steps.tolist() == [1.0, 0.0]
 
 
-def test_td_error_matches_hand_computation():
-    cfg = small_cfg(gamma=0.9)
+@pytest.mark.parametrize("normalize", [False, True])
+def test_td_error_matches_hand_computation(normalize):
+    cfg = small_cfg(gamma=0.9, normalize_inputs=normalize)
+    pos = (lambda x: (x - 15.0) / 15.0) if normalize else (lambda x: x)
+    act = (lambda u: u / 180.0) if normalize else (lambda u: u)
     agent = Agent(cfg, [3, 4])
     s, a, r, s2, _ = transitions(2, 1)[0]
     done = torch.tensor([0.0, 1.0])
@@ -97,8 +100,9 @@ def test_td_error_matches_hand_computation():
             h = torch.cat([h @ critic.l2_state.weight[k] + critic.l2_state.bias[k, 0],
                            act @ critic.l2_action.weight[k] + critic.l2_action.bias[k, 0]])
             return (torch.relu(h) @ critic.out.weight[k] + critic.out.bias[k, 0]).squeeze().detach()
-        bootstrap = q(agent.target_critic, s2[k], mlp(agent.target_actor, s2[k]))
-        expected = r[k] + 0.9 * (1 - done[k]) * bootstrap - q(agent.critic, s[k], a[k])
+        x, x2 = pos(s[k]), pos(s2[k])
+        bootstrap = q(agent.target_critic, x2, act(mlp(agent.target_actor, x2)))
+        expected = r[k] + 0.9 * (1 - done[k]) * bootstrap - q(agent.critic, x, act(a[k]))
         torch.testing.assert_close(delta[k], expected, rtol=1e-5, atol=1e-5)
     assert delta.shape == (2,)
 
