@@ -149,3 +149,12 @@ def test_parse_seeds():
     for bad in ("a", "3-1", "1,1", "-2"):
         with pytest.raises(ValueError, match="--seeds"):
             parse_seeds(bad)
+
+
+def test_bf16_run_is_finite_and_reproducible(tmp_path):
+    cfg = tiny_config((0,), episodes=2)
+    cfg.precision = "bf16"
+    a = pd.read_parquet(train(cfg, tmp_path / "a", progress=False) / "metrics.parquet")
+    b = pd.read_parquet(train(cfg, tmp_path / "b", progress=False) / "metrics.parquet")
+    pd.testing.assert_frame_equal(a, b, check_exact=True)
+    assert np.isfinite(a[["return", "final_distance"]].to_numpy()).all()
