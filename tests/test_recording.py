@@ -162,7 +162,9 @@ def _tiny_train_config(seeds=(0,)):
     return TrainConfig(task="changing_target", seeds=seeds, episodes=3, agent=agent)
 
 
-def test_train_records_every_nth_episode_of_the_first_seed(tmp_path):
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory) -> tuple[Path, dict[int, list[bool]]]:
+    """A 2-seed APAC run with small networks, recording every 2nd episode; what seed 0's agent reported."""
     import torch
 
     from apac_mj.trainer import train
@@ -174,8 +176,14 @@ def test_train_records_every_nth_episode_of_the_first_seed(tmp_path):
         if info.active[0]:
             reported.setdefault(int(info.episode[0]), []).append(bool(info.habit[0]))
 
-    train(_tiny_train_config(seeds=(0, 1)), tmp_path / "run", progress=False, record_every=2, on_step=hook)
-    files = sorted((tmp_path / "run" / "recordings").glob("*.rrd"))
+    run_dir = tmp_path_factory.mktemp("train") / "run"
+    train(_tiny_train_config(seeds=(0, 1)), run_dir, progress=False, record_every=2, on_step=hook)
+    return run_dir, reported
+
+
+def test_train_records_every_nth_episode_of_the_first_seed(tiny_run):
+    run_dir, reported = tiny_run
+    files = sorted((run_dir / "recordings").glob("*.rrd"))
     assert [f.name for f in files] == ["episode_000000.rrd", "episode_000002.rrd"]
     for f in files:
         entities, props, _ = R.read_recording(f)
@@ -216,3 +224,19 @@ def test_record_command_rejects_bad_arguments(tmp_path, capsys):
     assert main(["record", "--out", str(tmp_path / "x.mp4")]) == 2
     assert main(["record", "--video", str(tmp_path / "x.avi"), "--out", str(tmp_path / "x.rrd")]) == 2
     assert main(["record", "--run", str(tmp_path / "missing"), "--out", str(tmp_path / "x.rrd")]) == 2
+
+
+def test_record_command_loads_a_run(tiny_run, tmp_path):
+    from apac_mj.cli import main
+
+    run_dir, _ = tiny_run
+    out = tmp_path / "from_run.rrd"
+    assert main(["record", "--run", str(run_dir), "--member", "1", "--episodes", "1", "--out", str(out)]) == 0
+    entities, props, _ = R.read_recording(out)
+    assert props["seeds"] == [0.0, 1.0] and props["agent.actor_hidden"] == [32.0, 32.0]
+    frames = len(entities[R.RENDER].times["frame"])
+    _, controller = R.scalar_series(entities[R.CONTROLLER])
+    assert len(controller) == frames - 1 >= 1
+    # the run finished 3 training episodes: the arbitrator sees episode 3 (past planning_episodes=1)
+    assert set(entities[R.DISTANCE].times["episode"]) == {3}
+    assert main(["record", "--run", str(run_dir), "--member", "2", "--out", str(tmp_path / "x.rrd")]) == 2
