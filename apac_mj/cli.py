@@ -14,6 +14,7 @@ COMMAND_MODULES = [
     "apac_mj.commands.tasks",
     "apac_mj.commands.grid",
     "apac_mj.commands.report",
+    "apac_mj.commands.demo",
     "apac_mj.commands.check_kinematics",
     "apac_mj.commands.train",
     "apac_mj.commands.evaluate",
