@@ -11,9 +11,24 @@ import io
 import os
 
 import imageio.v3 as iio
-import mujoco
 import numpy as np
 from PIL import Image
+
+
+def _gl_hint(e: BaseException) -> str:
+    backend = os.environ.get("MUJOCO_GL", "<unset>")
+    return (
+        f"cannot create an offscreen OpenGL context with MUJOCO_GL={backend!r} ({type(e).__name__}: {e}). "
+        "Rendering needs no display but needs an OpenGL backend: install EGL (e.g. apt-get install libegl1) "
+        "and keep MUJOCO_GL=egl, or install OSMesa (apt-get install libosmesa6) and set MUJOCO_GL=osmesa; "
+        "set MUJOCO_GL before importing apac_mj, mujoco or dm_control."
+    )
+
+
+try:
+    import mujoco
+except Exception as e:  # mujoco loads the MUJOCO_GL backend on import: a missing library fails here
+    raise RuntimeError(_gl_hint(e)) from e
 
 #: Default frame size (height, width) in pixels: square, as the overhead camera frames the square plane.
 FRAME_SHAPE = (240, 240)
@@ -73,13 +88,7 @@ def _make_renderer(model, height: int, width: int) -> mujoco.Renderer:
     except ValueError:
         raise  # frame larger than the offscreen buffer: mujoco's message names the limit
     except Exception as e:  # mujoco raises several types when no GL context can be made
-        backend = os.environ.get("MUJOCO_GL", "<unset>")
-        raise RuntimeError(
-            f"cannot create an offscreen OpenGL context with MUJOCO_GL={backend!r} ({type(e).__name__}: {e}). "
-            "Rendering needs no display but needs an OpenGL backend: install EGL (e.g. apt-get install libegl1) "
-            "and keep MUJOCO_GL=egl, or install OSMesa (apt-get install libosmesa6) and set MUJOCO_GL=osmesa; "
-            "set MUJOCO_GL before importing apac_mj, mujoco or dm_control."
-        ) from e
+        raise RuntimeError(_gl_hint(e)) from e
 
 
 def encode_jpeg(rgb: np.ndarray, quality: int = 75) -> bytes:
