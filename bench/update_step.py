@@ -5,9 +5,9 @@ For each ensemble size E and precision the script
 2. records every matrix product (mm/bmm/baddbmm/addmm, forward and backward)
    that one update dispatches, with its shapes, strides and dtypes,
 3. times, round-robin over all cases in several rounds (the machine is shared:
-   load hits all cases alike; the best round is kept), the full update and a
+   load hits all cases alike), alternating single timings of the full update and a
    replay of exactly those matrix products on random tensors of the same
-   layout ("roofline"),
+   layout ("roofline"), keeping the fastest timing of each (the least disturbed),
 and prints ms per update per seed, the ratio update / matmuls-only, and each
 per-seed time relative to the fp32 E=1 update.
 
@@ -108,8 +108,10 @@ class Case:
         self.mm: list[float] = []
 
     def round(self) -> None:
-        self.up.append(mean_ms(self.update, self.reps))
-        self.mm.append(mean_ms(self.matmuls, self.reps))
+        """``reps`` single timings of each, alternating (the minimum is the least disturbed)."""
+        for _ in range(self.reps):
+            self.up.append(mean_ms(self.update, 1))
+            self.mm.append(mean_ms(self.matmuls, 1))
 
     def row(self) -> dict:
         return {"E": self.E, "precision": self.precision, "update_ms": min(self.up) / self.E,
@@ -129,7 +131,7 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--sizes", type=int, nargs="+", default=[1, 10, 50], help="ensemble sizes E")
     p.add_argument("--precisions", nargs="+", default=["fp32", "bf16"], choices=["fp32", "bf16"])
-    p.add_argument("--rounds", type=int, default=8, help="round-robin timing rounds (best is kept)")
+    p.add_argument("--rounds", type=int, default=8, help="round-robin timing rounds (the fastest single timing is kept)")
     p.add_argument("--slot", type=float, default=0.3, help="seconds per timing slot (at least one update)")
     p.add_argument("--threads", type=int, default=1, help="torch threads (0: leave torch's default)")
     args = p.parse_args()
