@@ -6,6 +6,16 @@ episodes reach the target (measured: 10/10 for all seeds), the last 5 episodes
 need at most 12 steps on average (measured ~4-5) and the mean final distance of
 the last 5 episodes is below a third of the first 2 episodes' (learning
 happened, it was not luck of the start pose).
+
+Fast (CI): APAC on changing_target, 3 seeds x 50 episodes, planning phase
+shortened to 20 episodes. Asserts: no habit before episode 20; afterwards the
+arbitrator mixes both controllers (habit share of episodes 20-49 in [0.2, 0.95];
+measured ~0.4) and the last 10 episodes reach >= 75% of their targets pooled
+over seeds (measured 83%), >= 50% for every seed (measured 80-90%).
+
+Also (about 8 s): APAC with the paper's 100-episode planning phase on static_target,
+3 seeds x 150 episodes, 64-unit networks: episodes 100-149 reach >= 85%
+(measured ~97%) with a habit share >= 0.3 (measured ~0.5).
 """
 from __future__ import annotations
 
@@ -37,3 +47,24 @@ def test_spac_learns_static_target_fast(tmp_path):
         assert last5.steps.mean() <= 12, f"seed {seed}: steps {last5.steps.tolist()}"
         assert last5.final_distance.mean() < first2.final_distance.mean() / 3 or first2.success.all(), \
             f"seed {seed}: no improvement {first2.final_distance.tolist()} -> {last5.final_distance.tolist()}"
+
+
+def test_apac_arbitrates_and_keeps_reaching(tmp_path):
+    df = run(tmp_path, "apac", "changing_target", episodes=50, seeds=(0, 1, 2), planning_episodes=20)
+    assert (df[df.episode < 20].habit_actions == 0).all()
+    after = df[df.episode >= 20]
+    share = after.habit_actions.sum() / (after.habit_actions + after.planning_actions).sum()
+    assert 0.2 <= share <= 0.95, share
+    last = df[df.episode >= 40]
+    assert last.success.mean() >= 0.75, last.groupby("seed").success.mean().tolist()
+    assert (last.groupby("seed").success.mean() >= 0.5).all(), last.groupby("seed").success.mean().tolist()
+
+
+def test_apac_after_paper_planning_phase(tmp_path):
+    nets = dict(actor_hidden=(64, 64), critic_hidden=(64, 64), forward_hidden=(64, 64), inverse_hidden=(64, 64),
+                batch_size=64, babbling_episodes=10)
+    df = run(tmp_path, "apac", "static_target", episodes=150, seeds=(0, 1, 2), **nets)
+    after = df[df.episode >= 100]
+    assert after.success.mean() >= 0.85, after.groupby("seed").success.mean().tolist()
+    share = after.habit_actions.sum() / (after.habit_actions + after.planning_actions).sum()
+    assert share >= 0.3, share
