@@ -229,8 +229,8 @@ class Recording:
         self.delta_threshold = float(delta_threshold)
         self.frames = 0
         self._path_points: list[np.ndarray] = []
-        #: Time series rows (episode, step, frame, value) per entity, sent at each episode start and at close.
-        self._series: dict[str, list[tuple[int, int, int, float]]] = {}
+        #: Buffered rows (episode, step, frame, payload) per entity, sent at each episode start and at close.
+        self._rows: dict[str, list[tuple[int, int, int, Any]]] = {}
         # Batch generously: a file gains nothing from low latency, and every chunk carries its own schema.
         batching = rr.ChunkBatcherConfig(flush_tick=BATCH_SECONDS, flush_num_bytes=BATCH_BYTES)
         # A fresh random recording id (Rerun's default): two files opened together never merge.
@@ -262,21 +262,25 @@ class Recording:
         }
         for path, color in styles.items():
             s.log(path, rr.SeriesLines(colors=[color], names=[path.rsplit("/", 1)[-1]]), static=True)
+        for path, (color, radius, order) in _STRIP_STYLES.items():
+            s.log(path, rr.LineStrips2D.from_fields(colors=[color], radii=[radius], draw_order=order), static=True)
 
     # -- logging ----------------------------------------------------------------------
-    def _set_time(self, episode: int, step: int) -> None:
-        self._stream.set_time("episode", sequence=int(episode))
-        self._stream.set_time("step", sequence=int(step))
-        self._stream.set_time("frame", sequence=self.frames)
+    # Per-step data is buffered and sent as columns once per episode (at the next episode start and
+    # at close): one Rerun call per entity and episode instead of one per entity and step.
+    def _buffer(self, path: str, episode: int, step: int, payload: Any) -> None:
+        self._rows.setdefault(path, []).append((int(episode), int(step), self.frames, payload))
 
     def start_episode(self, episode: int, target: Sequence[float], link_lengths: Sequence[float],
                       note: str = "") -> None:
         """Log the episode's target, target zone and distance field, and the start event."""
-        self.flush_series()
+        self.flush()
         self._path_points = []
-        self._set_time(episode, 0)
-        target = np.asarray(target, dtype=np.float64)
         s = self._stream
+        s.set_time("episode", sequence=int(episode))
+        s.set_time("step", sequence=0)
+        s.set_time("frame", sequence=self.frames)
+        target = np.asarray(target, dtype=np.float64)
         s.log(TARGET, rr.Points2D([target], radii=[0.25], colors=[_RED]))
         s.log(TARGET_ZONE, rr.Ellipses2D(centers=[target], half_sizes=[[self.zone_radius] * 2],
                                          colors=[_RED], line_radii=[0.05]))
@@ -285,37 +289,32 @@ class Recording:
                                      draw_order=-10.0, magnification_filter="Linear"))
         l1, l2 = (float(v) for v in link_lengths)
         extra = f" {note}" if note else ""
-        self.event(f"episode {episode} starts: target ({target[0]:.2f}, {target[1]:.2f}) cm, "
-                   f"lengths l1={l1:.3f} l2={l2:.3f} cm{extra}")
+        self.event(episode, 0, f"episode {episode} starts: target ({target[0]:.2f}, {target[1]:.2f}) cm, "
+                               f"lengths l1={l1:.3f} l2={l2:.3f} cm{extra}")
 
-    def event(self, text: str, level: str = "INFO") -> None:
-        """A text event at the current time."""
-        self._stream.log(EVENTS, rr.TextLog(text, level=level))
+    def event(self, episode: int, step: int, text: str, level: str = "INFO") -> None:
+        """A text event at (episode, step) and the current frame."""
+        self._buffer(EVENTS, episode, step, (text, level))
 
     def log_step(self, rec: StepRecord, frame_jpeg: bytes | None) -> None:
-        """Log one step: the render, the three arms, the path and every time series."""
-        self._set_time(rec.episode, rec.step)
+        """Log one step: the render, the three arms, the path, every time series and the events."""
         if frame_jpeg is not None:
-            self._stream.log(RENDER, rr.EncodedImage(contents=frame_jpeg, media_type="image/jpeg"))
+            self._buffer(RENDER, rec.episode, rec.step, frame_jpeg)
         self._log_arms(rec)
         self._log_series(rec)
         self._log_step_events(rec)
         self.frames += 1
 
     def _log_arms(self, rec: StepRecord) -> None:
-        s = self._stream
-        arm = _arm_strip(rec.true_arm, self.origin)
-        s.log(ARM_MUJOCO, rr.LineStrips2D([arm], colors=[_BLACK], radii=[0.3], draw_order=[20.0]))
+        e, k = rec.episode, rec.step
+        self._buffer(ARM_MUJOCO, e, k, [_arm_strip(rec.true_arm, self.origin)])
         end, elbow = motion_function(*rec.joint_angles, *rec.link_lengths, self.origin)
-        mf = _arm_strip(np.concatenate([end, elbow]), self.origin)
-        s.log(ARM_MOTION_FUNCTION, rr.LineStrips2D([mf], colors=[_ORANGE], radii=[0.1], draw_order=[21.0]))
-        if np.all(np.isfinite(rec.predicted_arm)):
-            dashes = _dashed(_arm_strip(rec.predicted_arm, self.origin))
-            s.log(ARM_FORWARD_MODEL, rr.LineStrips2D(dashes, colors=[_GREEN], radii=[0.15], draw_order=[22.0]))
-        else:
-            s.log(ARM_FORWARD_MODEL, rr.Clear(recursive=False))
+        self._buffer(ARM_MOTION_FUNCTION, e, k, [_arm_strip(np.concatenate([end, elbow]), self.origin)])
+        predicted = np.all(np.isfinite(rec.predicted_arm))
+        # No prediction (the start pose): an empty batch, so the previous episode's arm does not linger.
+        self._buffer(ARM_FORWARD_MODEL, e, k, _dashed(_arm_strip(rec.predicted_arm, self.origin)) if predicted else [])
         self._path_points.append(rec.true_arm[:2].copy())
-        s.log(PATH, rr.LineStrips2D([np.array(self._path_points)], colors=[_BLUE], radii=[0.08], draw_order=[15.0]))
+        self._buffer(PATH, e, k, [np.array(self._path_points)])
 
     def _log_series(self, rec: StepRecord) -> None:
         values = {
@@ -327,31 +326,34 @@ class Recording:
         }
         for path, value in values.items():
             if np.isfinite(value):
-                self._series.setdefault(path, []).append((rec.episode, rec.step, self.frames, float(value)))
+                self._buffer(path, rec.episode, rec.step, float(value))
 
-    def flush_series(self) -> None:
-        """Send the buffered time series as columns (one call per series instead of one per step)."""
-        for path, rows in self._series.items():
-            episode, step, frame, value = zip(*rows)
+    def _log_step_events(self, rec: StepRecord) -> None:
+        e, k = rec.episode, rec.step
+        if k > 0 and not rec.vision:
+            self.event(e, k, f"occluded: arm and target not seen at step {k}", level="DEBUG")
+        if rec.reached:
+            self.event(e, k, f"target reached at step {k} (distance {rec.distance:.3f} cm)")
+        elif rec.done:
+            self.event(e, k, f"time limit at step {k} (distance {rec.distance:.3f} cm)", level="WARN")
+
+    def flush(self) -> None:
+        """Send everything buffered since the last episode start as columns."""
+        for path, rows in self._rows.items():
+            episode, step, frame, payload = zip(*rows)
+            if path in _STRIP_STYLES and not any(payload):
+                continue  # only empty batches (no prediction in any row): nothing to draw or clear
             self._stream.send_columns(
                 path,
                 indexes=[rr.TimeColumn("episode", sequence=episode), rr.TimeColumn("step", sequence=step),
                          rr.TimeColumn("frame", sequence=frame)],
-                columns=rr.Scalars.columns(scalars=np.asarray(value, dtype=np.float64)),
+                columns=_columns(path, list(payload)),
             )
-        self._series = {}
-
-    def _log_step_events(self, rec: StepRecord) -> None:
-        if rec.step > 0 and not rec.vision:
-            self.event(f"occluded: arm and target not seen at step {rec.step}", level="DEBUG")
-        if rec.reached:
-            self.event(f"target reached at step {rec.step} (distance {rec.distance:.3f} cm)")
-        elif rec.done:
-            self.event(f"time limit at step {rec.step} (distance {rec.distance:.3f} cm)", level="WARN")
+        self._rows = {}
 
     def close(self) -> None:
-        """Send the buffered series, flush and close the file."""
-        self.flush_series()
+        """Send the buffered rows, flush and close the file."""
+        self.flush()
         self._stream.flush()
         self._stream.disconnect()
 
@@ -360,6 +362,26 @@ class Recording:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+#: (color, radius cm, draw order) of the line-strip entities, logged once as static components.
+_STRIP_STYLES = {
+    ARM_MUJOCO: (_BLACK, 0.3, 20.0), ARM_MOTION_FUNCTION: (_ORANGE, 0.1, 21.0),
+    ARM_FORWARD_MODEL: (_GREEN, 0.15, 22.0), PATH: (_BLUE, 0.08, 15.0),
+}
+
+
+def _columns(path: str, payload: list[Any]) -> Any:
+    """The Rerun columns of one entity's buffered rows."""
+    if path == RENDER:
+        return rr.EncodedImage.columns(blob=payload, media_type=["image/jpeg"] * len(payload))
+    if path == EVENTS:
+        text, level = zip(*payload)
+        return rr.TextLog.columns(text=list(text), level=list(level))
+    if path in _STRIP_STYLES:
+        strips = [strip for row in payload for strip in row]
+        return rr.LineStrips2D.columns(strips=strips).partition([len(row) for row in payload])
+    return rr.Scalars.columns(scalars=np.asarray(payload, dtype=np.float64))
 
 
 def _flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:

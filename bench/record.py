@@ -71,35 +71,46 @@ def _training_step(seeds: int) -> Callable[[], None]:
     return step
 
 
-def _recording_step(path: Path) -> tuple[Callable[[], None], Callable[[], None], Callable[[], None], R.Recording]:
-    """(advance the env, record the current step, close, the recording)."""
-    env = suite.load("planar_arm", "changing_target", task_kwargs={"random": 0})
-    rng = np.random.default_rng(1)
-    ts = env.reset()
-    renderer = render.Renderer(env.physics)
-    rec = R.recording_for_env(path, env, {"bench": "record"})
-    first = R.step_record_from_env(env, 0, ts)
-    rec.start_episode(0, first.target, first.link_lengths)
-    episode = [0]
+class _RecordingStep:
+    """One environment and its recording: ``advance`` steps the env (untimed, it belongs to the
+    training step); calling the object records the current step, episode starts included."""
 
-    def advance() -> None:  # the environment step itself is part of the training step, not timed here
-        nonlocal ts
-        if ts.last():
-            ts = env.reset()
-            episode[0] += 1
-            rec.start_episode(episode[0], env.physics.target(), env.physics.link_lengths())
-        ts = env.step(rng.uniform(-40, 40, size=2))
+    def __init__(self, path: Path) -> None:
+        self.env = suite.load("planar_arm", "changing_target", task_kwargs={"random": 0})
+        self.rng = np.random.default_rng(1)
+        self.ts = self.env.reset()
+        self.renderer = render.Renderer(self.env.physics)
+        self.rec = R.recording_for_env(path, self.env, {"bench": "record"})
+        self.episode, self.new_episode = 0, True
+        #: Seconds spent per part: render, jpeg, log (log_step and episode starts).
+        self.parts = {"render": 0.0, "jpeg": 0.0, "log": 0.0}
 
-    def record() -> None:
-        step = R.step_record_from_env(env, episode[0], ts, habit=bool(rng.integers(2)), delta=float(rng.normal()),
-                                      predicted_arm=first.true_arm)
-        rec.log_step(step, render.encode_jpeg(renderer.render()))
+    def advance(self) -> None:
+        if self.ts.last():
+            self.ts = self.env.reset()
+            self.episode, self.new_episode = self.episode + 1, True
+        self.ts = self.env.step(self.rng.uniform(-40, 40, size=2))
 
-    def close() -> None:
-        rec.close()
-        renderer.close()
+    def __call__(self) -> None:
+        t0 = time.perf_counter()
+        frame = self.renderer.render()
+        t1 = time.perf_counter()
+        jpeg = render.encode_jpeg(frame)
+        t2 = time.perf_counter()
+        if self.new_episode:  # also sends the previous episode's time series
+            self.rec.start_episode(self.episode, self.env.physics.target(), self.env.physics.link_lengths())
+            self.new_episode = False
+        step = R.step_record_from_env(self.env, self.episode, self.ts, habit=bool(self.rng.integers(2)),
+                                      delta=float(self.rng.normal()),
+                                      predicted_arm=self.rng.uniform(0, 30, size=4))
+        self.rec.log_step(step, jpeg)
+        t3 = time.perf_counter()
+        for k, dt in zip(self.parts, (t1 - t0, t2 - t1, t3 - t2)):
+            self.parts[k] += dt
 
-    return advance, record, close, rec
+    def close(self) -> None:
+        self.rec.close()
+        self.renderer.close()
 
 
 def _block_ms(fn: Callable[[], None], steps: int, between: Callable[[], None] | None = None) -> float:
@@ -128,17 +139,18 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "bench.rrd"
         train = _training_step(args.seeds)
-        advance, record, close, rec = _recording_step(path)
+        record = _RecordingStep(path)
         train_ms = record_ms = float("inf")
         for _ in range(args.repeats):  # interleaved blocks: both see the same load
             train_ms = min(train_ms, _block_ms(train, args.steps))
-            record_ms = min(record_ms, _block_ms(record, args.steps, between=advance))
-        close()
-        size = path.stat().st_size
-        frames = rec.frames
+            record_ms = min(record_ms, _block_ms(record, args.steps, between=record.advance))
+        record.close()
+        size, frames = path.stat().st_size, record.rec.frames
+        total = sum(record.parts.values())
+        shares = ", ".join(f"{k} {v / total:.0%}" for k, v in record.parts.items())
     print(f"torch threads: 1, ensemble members: {args.seeds}, steps per block: {args.steps}, best of {args.repeats}")
     print(f"training step (proposals + env step + replay + update): {train_ms:8.2f} ms")
-    print(f"recording step (render + JPEG + log_step):              {record_ms:8.2f} ms")
+    print(f"recording step (render + JPEG + log_step):              {record_ms:8.2f} ms  ({shares})")
     ratio = record_ms / train_ms
     print(f"recording / training step:                              {ratio:8.1%}  (goal <= 10%)")
     print(f"averaged over training with --record-every {args.record_every}:           "
