@@ -181,7 +181,7 @@ class Agent:
     def _gradients(self, b: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
         """Losses ``[E]`` of the four networks and their gradients (into ``self._grads``) by hand:
         the same quantities as :meth:`_losses` + autograd, on preallocated buffers."""
-        cfg, dt, W, G = self.cfg, self._dtype, self._W, self._G
+        cfg, dt, W = self.cfg, self._dtype, self._W
         s, a, s2 = b["state"], b["action"], b["next_state"]
         B = s.shape[1]
         x, x2, a_in = self._pos(s).to(dt), self._pos(s2).to(dt), self._act(a).to(dt)
@@ -210,7 +210,7 @@ class Agent:
         return losses
 
     def _critic_forward(self, name: str, x: torch.Tensor, a_in: torch.Tensor) -> tuple[torch.Tensor, ...]:
-        """``h1 [E,B,400]``, ``h2 [E,B,600]`` (state half, action half) and ``Q [E,B,1]``."""
+        """``h1 [E,B,400]``, ``h2 [E,B,600]`` (relu'd state half, action half) and ``Q [E,B]``."""
         (w1, b1), (ws, bs), (wa, ba), (wo, bo) = self._W[name]
         E, B, half = x.shape[0], x.shape[1], ws.shape[-1]
         h1 = torch.baddbmm(b1, x, w1, out=self._ws.get(f"{name}.h1", (E, B, w1.shape[-1]), x.dtype)).relu_()
