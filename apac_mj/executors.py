@@ -20,10 +20,10 @@ from apac_mj.grid import run_cell
 OnResult = Callable[[dict[str, Any]], None]
 
 
-def _safe_run_cell(cell_dir: str, progress: bool) -> dict[str, Any]:
+def _safe_run_cell(cell_dir: str, progress: bool, threads: int = 1) -> dict[str, Any]:
     """run_cell, with a failure reported as a status instead of ending the grid."""
     try:
-        return run_cell(cell_dir, progress=progress)
+        return run_cell(cell_dir, progress=progress, threads=threads)
     except Exception as e:  # noqa: BLE001 - a failed cell is recorded, the others go on
         traceback.print_exc()
         return {"cell": cell_dir.rstrip("/").rsplit("/", 1)[-1], "status": "failed", "error": f"{type(e).__name__}: {e}"}
@@ -43,34 +43,36 @@ class LocalExecutor:
         self.workers = workers
 
     def run(self, cell_dirs: Sequence[str], on_result: OnResult, progress: bool = True, done: int = 0,
-            total: int | None = None) -> None:
+            total: int | None = None, threads: int = 1) -> None:
         with _grid_bar(progress, done, total or len(cell_dirs)) as bar:
             if self.workers == 1:
                 for d in cell_dirs:
-                    _report(bar, on_result, _safe_run_cell(d, progress))
+                    _report(bar, on_result, _safe_run_cell(d, progress, threads))
                 return
             ctx = multiprocessing.get_context("spawn")
             with cf.ProcessPoolExecutor(self.workers, mp_context=ctx) as pool:
-                futures = [pool.submit(_safe_run_cell, d, progress) for d in cell_dirs]
+                futures = [pool.submit(_safe_run_cell, d, progress, threads) for d in cell_dirs]
                 for fut in cf.as_completed(futures):
                     _report(bar, on_result, fut.result())
 
 
 class RayExecutor:
-    """One Ray task per cell. ``address=None`` starts a local Ray instance bound to 127.0.0.1."""
+    """One Ray task per cell, reserving as many CPUs as the preset's torch threads.
 
-    def __init__(self, address: str | None = None, cpus_per_cell: float = 1.0, num_cpus: int | None = None) -> None:
+    ``address=None`` starts a local Ray instance bound to 127.0.0.1 (``num_cpus`` caps it).
+    """
+
+    def __init__(self, address: str | None = None, num_cpus: int | None = None) -> None:
         self.address = address
-        self.cpus_per_cell = cpus_per_cell
         self.num_cpus = num_cpus
 
     def run(self, cell_dirs: Sequence[str], on_result: OnResult, progress: bool = True, done: int = 0,
-            total: int | None = None) -> None:
+            total: int | None = None, threads: int = 1) -> None:
         ray = import_ray()
         started_here = self._init(ray)
         try:
-            remote = ray.remote(num_cpus=self.cpus_per_cell, max_retries=0)(_safe_run_cell)
-            pending = [remote.remote(d, False) for d in cell_dirs]
+            remote = ray.remote(num_cpus=threads, max_retries=0)(_safe_run_cell)
+            pending = [remote.remote(d, False, threads) for d in cell_dirs]
             with _grid_bar(progress, done, total or len(cell_dirs)) as bar:
                 while pending:
                     ready, pending = ray.wait(pending, num_returns=1)

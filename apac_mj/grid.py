@@ -65,6 +65,8 @@ class Tests:
     generalization: bool = True
     #: Training conditions for which the generalization study runs.
     generalization_conditions: tuple[str, ...] = CONDITIONS
+    #: Keep only the first ``limit`` test targets per seed (0: all, the paper's 100; smoke runs use a few).
+    limit: int = 0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -86,6 +88,9 @@ class Preset:
     device: str = "cpu"
     precision: str = "fp32"
     actuation: str = "servo"
+    #: Torch CPU threads per cell. 1 is fastest for these small networks: more threads than free cores
+    #: spin at barriers and were 25x slower on a loaded 2-core machine.
+    threads: int = 1
     tests: Tests = Tests()
     #: AgentConfig overrides (apac_mj/config.py field names).
     agent: dict[str, Any] = dataclasses.field(default_factory=dict)
@@ -96,7 +101,7 @@ class Preset:
         _check_subset(self.name, "tests.generalization_conditions", self.tests.generalization_conditions, CONDITIONS)
         if not self.seeds or len(set(self.seeds)) != len(self.seeds) or min(self.seeds) < 0:
             raise PresetError(f"preset {self.name!r}: seeds must be distinct non-negative ints, got {list(self.seeds)}")
-        for key in ("episodes", "checkpoint_every"):
+        for key in ("episodes", "checkpoint_every", "threads"):
             if not isinstance(getattr(self, key), int) or getattr(self, key) < 1:
                 raise PresetError(f"preset {self.name!r}: {key} must be an int >= 1, got {getattr(self, key)!r}")
         _check_subset(self.name, "device", (self.device.split(":")[0],), ("cpu", "cuda"))
@@ -206,6 +211,9 @@ def preset_from_dict(data: dict[str, Any], name: str = "<dict>") -> Preset:
     test_fields = {f.name for f in dataclasses.fields(Tests)}
     if not isinstance(tests, dict) or set(tests) - test_fields:
         raise PresetError(f"preset {name!r}: [tests] keys must be among {sorted(test_fields)}, got {tests!r}")
+    limit = tests.get("limit", 0)
+    if isinstance(limit, bool) or not isinstance(limit, int) or limit < 0:
+        raise PresetError(f"preset {name!r}: tests.limit must be an int >= 0 (0 = all targets), got {limit!r}")
     for key in ("grid", "occluded", "generalization"):
         if not isinstance(tests.get(key, True), bool):
             raise PresetError(f"preset {name!r}: tests.{key} must be true or false, got {tests[key]!r}")
@@ -297,7 +305,7 @@ def prepare_cell(cell: Cell, preset: Preset, results: Path) -> Path:
     cell_dir = results / cell.name
     cfg = to_dict(cell.train_config(preset))
     info = {"agent": cell.agent, "condition": cell.condition, "region": cell.region,
-            "protocols": list(cell.protocols), "train_config": _jsonable(cfg)}
+            "protocols": list(cell.protocols), "test_limit": preset.tests.limit, "train_config": _jsonable(cfg)}
     old = read_json(cell_dir / CELL_FILE)
     if old is not None and old != info:
         raise ValueError(f"{cell_dir} holds results of a different configuration "
@@ -319,8 +327,11 @@ def _first_difference(old: dict, new: dict, prefix: str = "") -> str:
     return "no difference"
 
 
-def run_cell(cell_dir: str | Path, progress: bool = True) -> dict[str, Any]:
-    """Train (or resume) and test one prepared cell; returns its status. Runs in any process."""
+def run_cell(cell_dir: str | Path, progress: bool = True, threads: int = 1) -> dict[str, Any]:
+    """Train (or resume) and test one prepared cell with ``threads`` torch threads; returns its status."""
+    import torch
+
+    torch.set_num_threads(threads)
     cell_dir = Path(cell_dir)
     info = read_json(cell_dir / CELL_FILE)
     if info is None:
@@ -331,14 +342,14 @@ def run_cell(cell_dir: str | Path, progress: bool = True) -> dict[str, Any]:
 
         train(train_config_from_dict(info["train_config"]), cell_dir, progress=progress)
         if info["protocols"]:
-            _evaluate(cell_dir, tuple(info["protocols"]))
+            _evaluate(cell_dir, tuple(info["protocols"]), info["test_limit"])
     return {"cell": cell_dir.name, "status": "done", "wall_s": round(time.perf_counter() - start, 3)}
 
 
-def _evaluate(cell_dir: Path, protocols: tuple[str, ...]) -> None:
+def _evaluate(cell_dir: Path, protocols: tuple[str, ...], limit: int) -> None:
     from apac_mj.evaluate import evaluate
 
-    evaluate(cell_dir, protocols=protocols)
+    evaluate(cell_dir, protocols=protocols, limit=limit or None)
 
 
 # -- the grid ------------------------------------------------------------------------
@@ -362,7 +373,7 @@ def run_grid(preset: Preset, results: str | Path, executor: Any = None, progress
 
     start = time.perf_counter()
     executor.run([str(dirs[n]) for n in todo], on_result, progress=progress, done=len(dirs) - len(todo),
-                 total=len(dirs))
+                 total=len(dirs), threads=preset.threads)
     manifest["wall_s_this_run"] = round(time.perf_counter() - start, 3)
     write_manifest(results, manifest)
     failed = {n: c["error"] for n, c in manifest["cells"].items() if c["status"] == "failed"}

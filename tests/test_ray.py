@@ -37,11 +37,10 @@ def test_ray_grid_equals_local_grid(tmp_path: Path) -> None:
     pytest.importorskip("apac_mj.evaluate", reason="the evaluation has not landed yet")
     preset = grid.load_preset("smoke", TINY)
     threads = torch.get_num_threads()
-    torch.set_num_threads(1)  # Ray tasks run with OMP_NUM_THREADS = their CPUs (1)
     try:
         grid.run_grid(preset, tmp_path / "local", LocalExecutor(), progress=False)
     finally:
-        torch.set_num_threads(threads)
+        torch.set_num_threads(threads)  # run_cell sets the preset's threads (1) in this process
     assert not ray.is_initialized()
     manifest = grid.run_grid(preset, tmp_path / "ray", RayExecutor(num_cpus=1), progress=False)
     assert not ray.is_initialized(), "the executor shuts down the Ray instance it started"
