@@ -30,6 +30,7 @@ class EnsembleReplay:
                      for k, d in dims.items()}
         self.count = [0] * self.E
         self.ptr = [0] * self.E
+        self._rows = torch.arange(self.E, device=self.device)[:, None]
 
     def add(self, state: torch.Tensor, action: torch.Tensor, reward: torch.Tensor,
             next_state: torch.Tensor, done: torch.Tensor, mask: torch.Tensor | Sequence[bool]) -> None:
@@ -63,8 +64,7 @@ class EnsembleReplay:
                 raise ValueError(f"member {k} has an empty replay memory")
             idx[k] = torch.randint(self.count[k], (batch_size,), generator=self.generators[k])
         idx = idx.to(self.device)
-        rows = torch.arange(self.E, device=self.device)[:, None]
-        return {name: t[rows, idx] for name, t in self.data.items()}
+        return {name: t[self._rows, idx] for name, t in self.data.items()}
 
     def state_dict(self) -> dict:
         return {"data": {k: v.clone() for k, v in self.data.items()}, "count": list(self.count),
