@@ -143,6 +143,9 @@ def build_inverse_model(hidden: Sequence[int], scale: float, gens: Sequence[torc
 # the weights explicitly ([(W, b), ...], possibly bf16 copies) and are checked
 # against autograd in tests/test_agent.py.
 
+#: Layers with at most this many outputs are computed in transposed form.
+NARROW = 8
+
 _ACT_INPLACE: dict[str, Callable[[torch.Tensor], torch.Tensor]] = {
     "relu": torch.relu_, "sigmoid": torch.sigmoid_, "tanh": torch.tanh_}
 
@@ -177,8 +180,13 @@ def mlp_forward(ws: Workspace, key: str, weights: Sequence[tuple[torch.Tensor, t
     xs = [x]
     n = len(weights)
     for i, (w, b) in enumerate(weights):
-        z = ws.get(f"{key}.h{i}", (*x.shape[:2], w.shape[-1]), x.dtype)
-        torch.baddbmm(b, xs[-1], w, out=z)
+        E, B, out = x.shape[0], x.shape[1], w.shape[-1]
+        if out <= NARROW:
+            # narrow outputs as W^T x^T ([E,out,B], viewed back as [E,B,out]): several times faster
+            zt = ws.get(f"{key}.h{i}t", (E, out, B), x.dtype)
+            z = torch.baddbmm(b.transpose(1, 2), w.transpose(1, 2), xs[-1].transpose(1, 2), out=zt).transpose(1, 2)
+        else:
+            z = torch.baddbmm(b, xs[-1], w, out=ws.get(f"{key}.h{i}", (E, B, out), x.dtype))
         _ACT_INPLACE[hidden_act if i < n - 1 else out_act](z)
         xs.append(z)
     return xs
