@@ -13,7 +13,9 @@ beside the paper's motion function and the forward model's prediction, the
 target zone over the distance field, and the time series of reward, distance,
 |delta| against the arbitration threshold, the controller that acted, the
 forward-model and kinematics errors, link lengths and vision. Actions are the
-arbitrator's choice without exploration noise. No viewer is started and no
+arbitrator's choice without exploration noise. With --run the rollouts
+continue the run's environments where training left off (link lengths, static
+target, the next targets of its sequence). No viewer is started and no
 display is needed; open the file with `rerun FILE.rrd`. docs/recording.md
 describes every panel.
 
@@ -31,7 +33,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--task", default=None, help="task name from tasks/ (default: the run's task, else changing_target)")
     p.add_argument("--agent", choices=("ddpg", "spac", "apac"), default=None,
                    help="controller arbitration mode (default: the run's, else apac)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the untrained networks and of the rollout targets (default 0)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="seed of the untrained networks and of the rollout targets (default 0); with --run the "
+                        "rollouts continue the run's environments (lengths, targets) unless --task names another task")
     p.add_argument("--member", type=int, default=0,
                    help="with --run: which of the run's seeds (index in its seed list) to record (default 0)")
     p.add_argument("--episodes", type=int, default=5, help="episodes to roll out (default 5)")
@@ -53,12 +57,12 @@ def run(args: argparse.Namespace) -> int:
     from apac_mj.render import write_video
 
     torch.set_num_threads(min(torch.get_num_threads(), 2))
-    cfg, agent, as_episode = _load_agent(args)
+    cfg, agent, as_episode, env_state = _load_agent(args)
     member = args.member if args.run is not None else 0
     config = _config_dict(cfg)
     with EpisodeRecorder(args.out.parent, 1, config, member=member, out=args.out,
                          keep_frames=args.video is not None) as recorder:
-        vec_env = _vec_env(cfg, args)
+        vec_env = _vec_env(cfg, args, env_state)
         for k in tqdm(range(args.episodes), desc="record", unit="episode"):
             _rollout_episode(agent, cfg, vec_env, recorder, as_episode + k)
     size, steps = args.out.stat().st_size, _frames(args.out)
@@ -84,8 +88,9 @@ def _check_args(args: argparse.Namespace) -> None:
         raise FileNotFoundError(f"--run {args.run} is not a directory")
 
 
-def _load_agent(args: argparse.Namespace) -> tuple[Any, Any, int]:
-    """(TrainConfig, Agent, first arbitrator episode) from a run's latest checkpoint or fresh."""
+def _load_agent(args: argparse.Namespace) -> tuple[Any, Any, int, dict[str, Any] | None]:
+    """(TrainConfig, Agent, first arbitrator episode, environment state or None), from a run's latest
+    checkpoint or fresh."""
     from apac_mj import checkpoint
     from apac_mj.agent import Agent
     from apac_mj.config import AgentConfig, TrainConfig, train_config_from_dict
@@ -95,8 +100,8 @@ def _load_agent(args: argparse.Namespace) -> tuple[Any, Any, int]:
                           agent=AgentConfig(agent=args.agent or "apac"))
         agent = Agent(cfg.agent, cfg.seeds)
         first = cfg.agent.planning_episodes if args.as_episode is None else args.as_episode
-        return cfg, agent, first
-    ckpt = checkpoint.load(args.run / "checkpoints" / "latest.pt", required=("config", "agent", "loop"))
+        return cfg, agent, first, None
+    ckpt = checkpoint.load(args.run / "checkpoints" / "latest.pt", required=("config", "agent", "loop", "env"))
     run_cfg = dict(ckpt["config"])
     run_cfg.pop("git_commit", None)
     cfg = train_config_from_dict(run_cfg)
@@ -106,10 +111,10 @@ def _load_agent(args: argparse.Namespace) -> tuple[Any, Any, int]:
     agent.load_state_dict(ckpt["agent"])
     if args.agent is not None:
         cfg.agent.agent = args.agent
-    if args.task is not None:
-        cfg.task = args.task
+    env_state = ckpt["env"] if args.task in (None, cfg.task) else None
+    cfg.task = args.task or cfg.task
     trained = int(ckpt["loop"]["episode"][args.member])
-    return cfg, agent, max(trained, 0) if args.as_episode is None else args.as_episode
+    return cfg, agent, max(trained, 0) if args.as_episode is None else args.as_episode, env_state
 
 
 def _config_dict(cfg: Any) -> dict[str, Any]:
@@ -118,11 +123,19 @@ def _config_dict(cfg: Any) -> dict[str, Any]:
     return config_dict(cfg)
 
 
-def _vec_env(cfg: Any, args: argparse.Namespace) -> Any:
+def _vec_env(cfg: Any, args: argparse.Namespace, env_state: dict[str, Any] | None) -> Any:
+    """The run's environments where training left off (``env_state``), else fresh ones seeded from --seed."""
+    from apac_mj.suite import load_spec
     from apac_mj.vec_env import VecEnv
 
-    # Environment seeds (targets): --seed, --seed + 1, ... one per member.
-    return VecEnv(cfg.task, [args.seed + k for k in range(len(cfg.seeds))], actuation=cfg.actuation)
+    if env_state is None:
+        return VecEnv(cfg.task, [args.seed + k for k in range(len(cfg.seeds))], actuation=cfg.actuation)
+    # Built as the trainer builds it (growth starts after babbling + growth_start_episode episodes), then
+    # restored: the run's link lengths, static targets and the next targets of its sequence.
+    growth = load_spec(cfg.task).growth_start_episode + cfg.agent.babbling_episodes
+    vec_env = VecEnv(cfg.task, list(cfg.seeds), cfg.actuation, overrides={"growth_start_episode": growth})
+    vec_env.set_state(env_state)
+    return vec_env
 
 
 def _rollout_episode(agent: Any, cfg: Any, vec_env: Any, recorder: Any, episode: int) -> None:
