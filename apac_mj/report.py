@@ -178,8 +178,9 @@ def _window(metrics: pd.DataFrame) -> int:
 def _line(ax: plt.Axes, frame: pd.DataFrame, column: str, window: int, label: str, color: str,
           scale: float = 1.0) -> None:
     x, m, lo, hi = _smooth_band(frame, column, window)
+    upper = scale if column == "success" else np.inf  # bands clipped to the quantity's range
     ax.plot(x, scale * m, color=color, label=label, lw=1.4)
-    ax.fill_between(x, scale * lo, scale * hi, color=color, alpha=0.2, lw=0)
+    ax.fill_between(x, np.clip(scale * lo, 0, upper), np.clip(scale * hi, 0, upper), color=color, alpha=0.2, lw=0)
 
 
 def _save(fig: plt.Figure, path: Path, title: str) -> Path:
@@ -247,7 +248,8 @@ def _bars(ax: plt.Axes, table: pd.DataFrame, quantity: str, conds: list[str], ag
         mean = np.array([r["mean"].iloc[0] if len(r) else np.nan for r in rows])
         lo = np.array([r["ci95_low"].iloc[0] if len(r) else np.nan for r in rows])
         hi = np.array([r["ci95_high"].iloc[0] if len(r) else np.nan for r in rows])
-        err = np.nan_to_num(np.vstack([mean - lo, hi - mean]))
+        upper = 100.0 if QUANTITIES[quantity][2] == "%" else np.inf  # error bars clipped to the quantity's range
+        err = np.nan_to_num(np.vstack([mean - np.maximum(lo, 0), np.minimum(hi, upper) - mean]))
         x = np.arange(len(conds)) + (k - (len(agents) - 1) / 2) * width
         ax.bar(x, mean, width, yerr=err, capsize=3, color=AGENT_COLOR[agent], label=AGENT_LABEL[agent])
     ax.set_xticks(np.arange(len(conds)), [COND_SHORT[c] for c in conds])
