@@ -158,3 +158,50 @@ def test_bf16_run_is_finite_and_reproducible(tmp_path):
     b = pd.read_parquet(train(cfg, tmp_path / "b", progress=False) / "metrics.parquet")
     pd.testing.assert_frame_equal(a, b, check_exact=True)
     assert np.isfinite(a[["return", "final_distance"]].to_numpy()).all()
+
+
+class _Evil:
+    def __reduce__(self):
+        return (print, ("code ran",))
+
+
+def test_checkpoint_with_code_is_refused(tmp_path, capsys):
+    path = tmp_path / "evil.pt"
+    torch.save({"format_version": checkpoint.FORMAT_VERSION, "x": _Evil()}, path)
+    with pytest.raises(checkpoint.CheckpointError, match="corrupt or incompatible"):
+        checkpoint.load(path)
+    assert "code ran" not in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("task,actuation", [("changing_target", "servo"),
+                                            ("static_target_changing_kinematics", "kinematic")])
+def test_vec_env_state_roundtrip_mid_episode(task, actuation):
+    import io
+
+    from apac_mj.vec_env import VecEnv
+
+    def make():
+        return VecEnv(task, [0, 1], actuation, overrides={"growth_start_episode": 0})
+
+    def play(env, actions):
+        out = []
+        for a in actions:
+            o = env.step(a)
+            out.append(np.concatenate([o.arm.ravel(), o.reward, env.link_lengths().ravel(), env.targets().ravel()]))
+            env.reset(o.last)
+        return np.array(out)
+
+    actions = np.random.default_rng(0).uniform(-60, 60, size=(40, 2, 2))
+    env = make()
+    env.reset()
+    play(env, actions[:7])
+    buf = io.BytesIO()
+    torch.save(env.get_state(), buf)
+    buf.seek(0)
+    state = torch.load(buf, weights_only=True)
+    reference = play(env, actions[7:])
+    restored = make()
+    restored.set_state(state)
+    np.testing.assert_array_equal(play(restored, actions[7:]), reference)
+    with pytest.raises(ValueError, match="seeds"):
+        VecEnv(task, [5, 6], actuation).set_state(state)
