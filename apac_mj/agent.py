@@ -214,9 +214,12 @@ class Agent:
         (w1, b1), (ws, bs), (wa, ba), (wo, bo) = self._W[name]
         E, B, half = x.shape[0], x.shape[1], ws.shape[-1]
         h1 = torch.baddbmm(b1, x, w1, out=self._ws.get(f"{name}.h1", (E, B, w1.shape[-1]), x.dtype)).relu_()
+        # GEMMs into contiguous buffers (a strided out= costs a temporary and a copy), relu into h2's halves
         h2 = self._ws.get(f"{name}.h2", (E, B, 2 * half), x.dtype)
-        torch.baddbmm(bs, h1, ws, out=h2[..., :half]).relu_()
-        _action_branch(ba, a_in, wa, h2[..., half:]).relu_()
+        zs = torch.baddbmm(bs, h1, ws, out=self._ws.get(f"{name}.zs", (E, B, half), x.dtype))
+        za = torch.baddbmm(ba, a_in, wa, out=self._ws.get(f"{name}.za", (E, B, half), x.dtype))
+        torch.clamp_min(zs, 0, out=h2[..., :half])
+        torch.clamp_min(za, 0, out=h2[..., half:])
         return h1, h2, _q_head(bo, h2, wo, self._ws.get(f"{name}.q", (E, 1, B), x.dtype))
 
     def _critic_backward(self, x: torch.Tensor, a_in: torch.Tensor, h1: torch.Tensor, h2: torch.Tensor,
@@ -253,7 +256,8 @@ class Agent:
         pi_in = xs[-1] if cfg.normalize_inputs else xs[-1] * cfg.action_scale
         h2pi = self._ws.get("actor.h2", h2.shape, h2.dtype)
         h2pi[..., :half].copy_(h2[..., :half])
-        _action_branch(ba, pi_in, wa, h2pi[..., half:]).relu_()
+        za = torch.baddbmm(ba, pi_in, wa, out=self._ws.get("actor.za", (*h2.shape[:2], half), h2.dtype))
+        torch.clamp_min(za, 0, out=h2pi[..., half:])
         q_pi = _q_head(bo, h2pi, wo, self._ws.get("actor.q", (h2.shape[0], 1, B), h2.dtype)).float()
         dza = self._ws.get("actor.dza", (*h2.shape[:2], half), h2.dtype)
         dza.copy_((wo[:, half:].transpose(1, 2) * (-1.0 / B)).expand_as(dza))
@@ -342,14 +346,6 @@ class Agent:
         self.optimizer.load_state_dict(d["optimizer"])
         self.replay.load_state_dict(d["replay"])
         self.noise.load_state_dict(d["noise"])
-
-
-def _action_branch(b: torch.Tensor, a: torch.Tensor, w: torch.Tensor, out: torch.Tensor) -> torch.Tensor:
-    """``a @ w + b`` for a 2-wide action as two fused multiply-adds (a K=2 GEMM is slow)."""
-    torch.addcmul(b, a[..., :1], w[:, :1], out=out)
-    for k in range(1, a.shape[-1]):
-        out.addcmul_(a[..., k:k + 1], w[:, k:k + 1])
-    return out
 
 
 def _q_head(bo: torch.Tensor, h2: torch.Tensor, wo: torch.Tensor, out: torch.Tensor) -> torch.Tensor:
