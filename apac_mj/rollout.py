@@ -127,12 +127,10 @@ def _info(vec_env: VecEnv, obs: Observation, episode, step, active, state, actio
           reward, next_state, terminal) -> StepInfo:
     return StepInfo(
         episode=np.asarray(episode, dtype=np.int64).copy(), step=np.asarray(step, dtype=np.int64).copy(),
-        active=np.asarray(active, dtype=bool).copy(), state=_np(state), true_arm=vec_env.true_arm(),
-        target=vec_env.targets(), action=_np(action), habit=_np(habit).astype(bool), delta=_np(delta),
-        predicted_arm=_np(predicted), reward=_np(reward), distance=vec_env.distances(),
-        done=obs.last.copy(), reached=obs.reached.copy(), vision=obs.vision.copy(),
-        joint_angles=vec_env.joint_angles(), link_lengths=vec_env.link_lengths(), next_state=_np(next_state),
-        terminal=_np(terminal).astype(bool))
+        active=np.asarray(active, dtype=bool).copy(), state=_np(state), action=_np(action),
+        habit=_np(habit).astype(bool), delta=_np(delta), predicted_arm=_np(predicted), reward=_np(reward),
+        done=obs.last.copy(), reached=obs.reached.copy(), vision=obs.vision.copy(), next_state=_np(next_state),
+        terminal=_np(terminal).astype(bool), **vec_env.snapshot())
 
 
 #: Hooks as plain callables (the Protocols above document the signatures).

@@ -116,6 +116,16 @@ class VecEnv:
         for k in range(self.E):
             self.envs[k].task.set_link_lengths(float(lengths[k, 0]), float(lengths[k, 1]))
 
+    def snapshot(self) -> dict[str, np.ndarray]:
+        """All true-state queries below in one pass over the members (the per-step record)."""
+        arm, target, dist = np.empty((self.E, 4)), np.empty((self.E, 2)), np.empty(self.E)
+        angles, lengths = np.empty((self.E, 2)), np.empty((self.E, 2))
+        for k, e in enumerate(self.envs):
+            p = e.physics
+            arm[k, :2], arm[k, 2:], target[k] = p.end_effector(), p.elbow(), p.target()
+            dist[k], angles[k], lengths[k] = p.distance_to_target(), p.joint_angles(), p.link_lengths()
+        return {"true_arm": arm, "target": target, "distance": dist, "joint_angles": angles, "link_lengths": lengths}
+
     def true_arm(self) -> np.ndarray:
         """``[E, 4]`` the arm as MuJoCo has it: [end_x, end_y, elbow_x, elbow_y]."""
         return np.stack([np.concatenate([e.physics.end_effector(), e.physics.elbow()]) for e in self.envs])
