@@ -93,8 +93,8 @@ def paper_value(quantity: str, agent: str, condition: str) -> str:
 def late(metrics: pd.DataFrame) -> pd.DataFrame:
     """Training episodes in the last LATE_FRACTION of each cell's run."""
     train = metrics[metrics["phase"] == "train"]
-    last = train.groupby(["agent", "condition", "region"])["episode"].transform("max")
-    return train[train["episode"] >= (last + 1) * (1 - LATE_FRACTION)]
+    n = train.groupby(["agent", "condition", "region"])["episode"].transform("max") + 1
+    return train[train["episode"] >= n - np.ceil(n * LATE_FRACTION)]
 
 
 def per_seed(metrics: pd.DataFrame, tests: pd.DataFrame) -> pd.DataFrame:

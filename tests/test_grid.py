@@ -12,7 +12,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from apac_mj import grid
+from apac_mj import grid, report
 from apac_mj.cli import main
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -136,6 +136,12 @@ def test_smoke_grid_then_report(tmp_path: Path, stack: None) -> None:
     assert set(tests["protocol"]) == {"grid", "occluded", "generalization"}
     assert main(["report", str(out)]) == 0
     table = pd.read_csv(out / "report" / "key_numbers.csv")
+    assert set(table["quantity"]) == set(report.QUANTITIES)
+    late = metrics[(metrics["phase"] == "train") & (metrics["episode"] == p.episodes - 1)]  # last 20% of 4 = 1 episode
+    late = late[(late["agent"] == "ddpg") & (late["condition"] == "static_target") & (late["region"] == "all")]
+    row = table[(table["quantity"] == "steps_late") & (table["agent"] == "ddpg")
+                & (table["condition"] == "static_target")].iloc[0]
+    assert row["mean"] == pytest.approx(late["steps"].mean())
     row = table[(table["quantity"] == "test_success") & (table["agent"] == "apac")
                 & (table["condition"] == "changing_target")].iloc[0]
     grid_test = pd.read_parquet(out / "apac__changing_target" / "eval" / "grid.parquet")
