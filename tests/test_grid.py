@@ -174,3 +174,13 @@ def test_kill_9_and_resume_equals_uninterrupted(tmp_path: Path, stack: None) -> 
     assert not (killed / "apac__changing_target" / "DONE").exists()
     subprocess.run(_grid_cmd(killed), check=True, env=env, cwd=ROOT, timeout=600)
     _assert_same_results(clean, killed)
+
+
+def test_demo_writes_report_and_recording(tmp_path: Path, stack: None, capsys) -> None:
+    out = tmp_path / "demo"
+    assert main(["demo", "--preset", "smoke", "--out", str(out), "--no-progress", "--set", "agents=apac",
+                 "--set", "conditions=changing_target", "--set", "tests.generalization=false"]) == 0
+    printed = capsys.readouterr().out
+    rrd = out / "apac__changing_target.rrd"
+    assert rrd.stat().st_size > 10_000 and f"recording: {rrd}" in printed
+    assert (out / "report" / "report.md").exists() and f"{out / 'report'}/fig*.png" in printed
