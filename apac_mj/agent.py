@@ -196,7 +196,7 @@ class Agent:
         losses = {"critic": (y - q32).pow(2).mean(1)}
         self._critic_backward(x, a_in, h1, h2, (2.0 / B) * (q32 - y))
         # actor: dQ(s, pi(s))/dpi through the critic's pre-update weights
-        losses["actor"] = self._actor_gradients(x, h2, B)
+        losses["actor"] = self._actor_gradients(x, s, h2, B)
         # forward model on the next observed arm position
         f_in = self._ws.get("forward_model.in", (*x.shape[:2], 6), dt)
         f_in[..., :4].copy_(x[..., :4])
@@ -206,7 +206,7 @@ class Agent:
         i_in = self._ws.get("inverse_model.in", (*x.shape[:2], 6), dt)
         i_in[..., :4].copy_(x[..., :4])
         i_in[..., 4:].copy_(x2[..., :2])
-        losses["inverse"] = self._regression("inverse_model", "relu", i_in, a, cfg.action_scale)
+        losses["inverse"] = self._regression("inverse_model", "relu", i_in, b["executed_action"], cfg.action_scale)
         return losses
 
     def _critic_forward(self, name: str, x: torch.Tensor, a_in: torch.Tensor) -> tuple[torch.Tensor, ...]:
@@ -247,8 +247,9 @@ class Agent:
         torch.bmm(x.transpose(1, 2), dh1, out=g1)
         torch.sum(dh1, dim=1, keepdim=True, out=gb1)
 
-    def _actor_gradients(self, x: torch.Tensor, h2: torch.Tensor, B: int) -> torch.Tensor:
-        """Actor loss ``-mean Q(s, pi(s))`` ``[E]``; its gradient into the actor's buffers."""
+    def _actor_gradients(self, x: torch.Tensor, s: torch.Tensor, h2: torch.Tensor, B: int) -> torch.Tensor:
+        """Actor loss ``-mean Q(s, pi(s))`` (+ the feasibility penalty) ``[E]``; its gradient into the
+        actor's buffers. ``x`` is the network input, ``s`` the raw state (cm)."""
         cfg, W = self.cfg, self._W
         _, (ws, _), (wa, ba), (wo, bo) = W["critic"]
         half = ws.shape[-1]
@@ -267,8 +268,32 @@ class Agent:
         dpi = torch.bmm(wa, dza.transpose(1, 2), out=dpi_t).transpose(1, 2)
         if not cfg.normalize_inputs:
             dpi.mul_(cfg.action_scale)
+        loss = -q_pi.mean(1)
+        if cfg.feasibility_weight > 0:
+            excess = self._excess(s, xs[-1].float())
+            dpi.add_((excess * (2.0 * cfg.feasibility_weight / B)).to(dpi.dtype))
+            loss = loss + cfg.feasibility_weight * excess.pow(2).sum(-1).mean(1)
         mlp_backward(self._ws, "actor", W["actor"], "relu", "tanh", xs, dpi, self._G["actor"])
-        return -q_pi.mean(1)
+        return loss
+
+    def _excess(self, s: torch.Tensor, squashed: torch.Tensor) -> torch.Tensor:
+        """``(a - clip_joints(a)) / action_scale`` ``[E,B,2]`` for the actor's tanh output ``squashed``:
+        the part of a command that the joint limits would clip. The actor's loss adds
+        ``feasibility_weight * mean_B |excess|^2``, which pulls such commands back to the limit."""
+        a = squashed * self.cfg.action_scale
+        lo, hi = self._feasible_range(s)
+        return (a - torch.minimum(torch.maximum(a, lo), hi)) / self.cfg.action_scale
+
+    def _feasible_range(self, s: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Joint-angle changes that keep both joints in [0, 180] from the arm pose in ``s`` (raw cm)."""
+        half = self.cfg.plane_scale / 2
+        end, elbow = s[..., 0:2], s[..., 2:4]
+        alpha = torch.rad2deg(torch.atan2(elbow[..., 1] - half, elbow[..., 0] - half))
+        arm = torch.rad2deg(torch.atan2(end[..., 1] - elbow[..., 1], end[..., 0] - elbow[..., 0]))
+        alpha = torch.remainder(alpha + 90.0, 360.0) - 90.0
+        beta = torch.remainder(arm - alpha + 90.0, 360.0) - 90.0
+        angles = torch.stack([alpha, beta], -1)
+        return -angles, 180.0 - angles
 
     def _regression(self, name: str, hidden_act: str, inputs: torch.Tensor, label: torch.Tensor,
                     scale: float) -> torch.Tensor:
@@ -305,13 +330,18 @@ class Agent:
         features = self.critic.features(x)
         q = self.critic.head(features, self._act(a)).float()
         # Actor: gradient of Q(s, pi(s)) through the critic's (pre-update) weights, not into them.
-        q_pi = self.critic.head(features.detach(), self._act(self.actor(x)), detach=True).float()
+        pi = self.actor(x)
+        q_pi = self.critic.head(features.detach(), self._act(pi), detach=True).float()
+        actor_loss = -q_pi.mean(1)
+        if self.cfg.feasibility_weight > 0:
+            excess = self._excess(s, pi.float() / self.cfg.action_scale)
+            actor_loss = actor_loss + self.cfg.feasibility_weight * excess.pow(2).sum(-1).mean(1)
         arm_next = self.forward_model(torch.cat([x[..., :4], self._act(a)], -1)).float()
         a_inv = self.inverse_model(torch.cat([x[..., :4], self._pos(s2[..., :2])], -1)).float()
         return {"critic": (y - q).pow(2).mean(1),
-                "actor": -q_pi.mean(1),
+                "actor": actor_loss,
                 "forward": (arm_next - s2[..., :4]).pow(2).mean((1, 2)),
-                "inverse": (a_inv - a).pow(2).mean((1, 2))}
+                "inverse": (a_inv - b["executed_action"]).pow(2).mean((1, 2))}
 
     @torch.no_grad()
     def _soft_update(self, members: list[int]) -> None:

@@ -12,7 +12,7 @@ from typing import Sequence
 
 import torch
 
-FIELDS = ("state", "action", "reward", "next_state", "done")
+FIELDS = ("state", "action", "reward", "next_state", "done", "executed_action")
 
 
 class EnsembleReplay:
@@ -25,7 +25,8 @@ class EnsembleReplay:
         self.generators = list(generators)
         self.E, self.capacity = len(self.generators), capacity
         self.device = torch.device(device)
-        dims = {"state": state_dim, "action": action_dim, "reward": 0, "next_state": state_dim, "done": 0}
+        dims = {"state": state_dim, "action": action_dim, "reward": 0, "next_state": state_dim, "done": 0,
+                "executed_action": action_dim}
         self.data = {k: torch.zeros((self.E, capacity, d) if d else (self.E, capacity), device=self.device)
                      for k, d in dims.items()}
         self.count = [0] * self.E
@@ -33,9 +34,14 @@ class EnsembleReplay:
         self._rows = torch.arange(self.E, device=self.device)[:, None]
 
     def add(self, state: torch.Tensor, action: torch.Tensor, reward: torch.Tensor,
-            next_state: torch.Tensor, done: torch.Tensor, mask: torch.Tensor | Sequence[bool]) -> None:
-        """Store one transition for each member with ``mask`` (``[E]`` bool)."""
-        values = dict(zip(FIELDS, (state, action, reward, next_state, done)))
+            next_state: torch.Tensor, done: torch.Tensor, mask: torch.Tensor | Sequence[bool],
+            executed_action: torch.Tensor | None = None) -> None:
+        """Store one transition for each member with ``mask`` (``[E]`` bool).
+
+        ``action`` is what the critic and the forward model learn from; ``executed_action`` (default:
+        ``action``) the joint-angle change the plant made, the inverse model's hindsight label."""
+        executed_action = action if executed_action is None else executed_action
+        values = dict(zip(FIELDS, (state, action, reward, next_state, done, executed_action)))
         m = torch.as_tensor(mask).cpu().bool().tolist()
         if len(m) != self.E:
             raise ValueError(f"mask must have {self.E} entries, got {len(m)}")
@@ -73,6 +79,9 @@ class EnsembleReplay:
     def load_state_dict(self, d: dict) -> None:
         if len(d["count"]) != self.E:
             raise ValueError(f"replay state has {len(d['count'])} members, expected {self.E}")
+        missing = sorted(set(self.data) - set(d["data"]))
+        if missing:
+            raise ValueError(f"replay state lacks the fields {missing} (written by an older apac_mj)")
         for k, v in d["data"].items():
             if v.shape != self.data[k].shape:
                 raise ValueError(f"replay {k} shape {tuple(v.shape)} != {tuple(self.data[k].shape)}")

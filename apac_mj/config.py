@@ -50,8 +50,12 @@ class AgentConfig:
 
     # -- exploration: Ornstein-Uhlenbeck noise on both proposals ---------------
     ou_theta: float = 0.15
-    #: OU sigma in degrees (the paper gives no value).
+    #: OU sigma in degrees (the paper gives no value); the final value when annealed.
     ou_sigma: float = 2.0
+    #: OU sigma at training episode 0 (degrees), annealed linearly to ``ou_sigma`` over
+    #: ``ou_sigma_anneal_episodes``; None: constant ``ou_sigma`` (the paper's reading).
+    ou_sigma_initial: float | None = None
+    ou_sigma_anneal_episodes: int = 0
 
     # -- arbitration (section "Arbitration") ---------------------------------
     #: APAC uses the inverse model only during this many first episodes.
@@ -78,9 +82,27 @@ class AgentConfig:
     normalize_inputs: bool = True
 
     # -- open choices of the DDPG update (docs/agent.md) ----------------------
+    #: Which action the critic and the forward model learn from: "executed" (the joint-angle change
+    #: the plant made, commands beyond a joint limit clipped) or "commanded" (the arbitrated command
+    #: plus noise, as standard DDPG stores it). The inverse model always learns the executed one.
+    critic_action: str = "executed"
+    #: Weight of a penalty on actor commands beyond the joint limits (the plant clips them, so the
+    #: critic never sees them and extrapolates; 0 = the paper, no penalty).
+    feasibility_weight: float = 1000.0
+
     #: Proposals from the target actor (the paper's text says so) instead of
     #: the online actor (standard DDPG, default).
     act_with_target_actor: bool = False
+
+    def ou_sigma_at(self, episode: "np.ndarray") -> "np.ndarray":
+        """OU sigma (degrees) per member at training ``episode`` (``[E]``; babbling counts as 0)."""
+        import numpy as np
+
+        episode = np.asarray(episode, dtype=float)
+        if self.ou_sigma_initial is None or self.ou_sigma_anneal_episodes <= 0:
+            return np.full(episode.shape, self.ou_sigma)
+        frac = np.clip(episode / self.ou_sigma_anneal_episodes, 0.0, 1.0)
+        return self.ou_sigma_initial + frac * (self.ou_sigma - self.ou_sigma_initial)
 
     def __post_init__(self) -> None:
         if self.agent not in AGENTS:
@@ -89,6 +111,10 @@ class AgentConfig:
             v = getattr(self, name)
             if not (0 < v <= 1):
                 raise ValueError(f"{name} must be in (0, 1], got {v}")
+        if self.critic_action not in ("executed", "commanded"):
+            raise ValueError(f"critic_action must be 'executed' or 'commanded', got {self.critic_action!r}")
+        if self.ou_sigma < 0 or (self.ou_sigma_initial is not None and self.ou_sigma_initial < 0):
+            raise ValueError("ou_sigma and ou_sigma_initial must be >= 0 degrees")
         if self.batch_size < 1 or self.replay_size < 1:
             raise ValueError("batch_size and replay_size must be >= 1")
 

@@ -34,15 +34,19 @@ class OUNoise:
             raise ValueError(f"mask must have shape ({self.E},), got {tuple(m.shape)}")
         self.x[m] = self.mu
 
-    def sample(self, mask: torch.Tensor | Sequence[bool] | None = None) -> torch.Tensor:
-        """Advance members with ``mask`` (all if None) one step; return the state ``[E, dim]``."""
+    def sample(self, mask: torch.Tensor | Sequence[bool] | None = None,
+               sigma: Sequence[float] | None = None) -> torch.Tensor:
+        """Advance members with ``mask`` (all if None) one step; return the state ``[E, dim]``.
+
+        ``sigma`` (``[E]``, degrees) replaces the constant ``self.sigma`` for this step (annealing)."""
         m = [True] * self.E if mask is None else torch.as_tensor(mask).cpu().bool().tolist()
         if len(m) != self.E:
             raise ValueError(f"mask must have {self.E} entries, got {len(m)}")
+        sig = [self.sigma] * self.E if sigma is None else [float(v) for v in sigma]
         for k, on in enumerate(m):
             if on:
                 eps = torch.randn(self.dim, generator=self.generators[k])
-                self.x[k] += self.theta * (self.mu - self.x[k]) + self.sigma * eps
+                self.x[k] += self.theta * (self.mu - self.x[k]) + sig[k] * eps
         return self.x.to(self.device, copy=True)
 
     def state_dict(self) -> dict:

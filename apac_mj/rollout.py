@@ -46,7 +46,7 @@ class StepInfo:
     state: np.ndarray          # [E, 6] the integrator's state the agent acted on [end, elbow, target]
     true_arm: np.ndarray       # [E, 4] MuJoCo's arm after the step [end, elbow]
     target: np.ndarray         # [E, 2] the true target
-    action: np.ndarray         # [E, 2] executed action (joint-angle changes, degrees)
+    action: np.ndarray         # [E, 2] commanded action (joint-angle changes, degrees; the plant clips it)
     habit: np.ndarray          # [E] bool: True if the actor acted, False if the inverse model (or babbling)
     delta: np.ndarray          # [E] TD error of this transition
     predicted_arm: np.ndarray  # [E, 4] the forward model's prediction of the arm after the step
@@ -82,7 +82,8 @@ def select_action(agent: Any, arbitrator: Arbitrator, state: torch.Tensor, episo
                                  torch.as_tensor(last_delta, dtype=torch.float32)).to(state.device)
     proposal = torch.where(habit[:, None], agent.actor_action(state), agent.inverse_action(state))
     if explore:
-        proposal = proposal + agent.noise.sample(torch.as_tensor(active)).to(state.device)
+        sigma = agent.cfg.ou_sigma_at(np.asarray(episode))
+        proposal = proposal + agent.noise.sample(torch.as_tensor(active), sigma).to(state.device)
     return proposal.clamp(-ACTION_BOUND, ACTION_BOUND), habit
 
 

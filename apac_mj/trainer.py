@@ -191,8 +191,10 @@ def _step(cfg: TrainConfig, loop: LoopState, active: np.ndarray, env: VecEnv, ag
     s, s2, r, done = _transition(info, babbling)
     dev = agent.device
     executed = torch.as_tensor(info.joint_angles - angles_before, dtype=torch.float32, device=dev)
-    agent.replay.add(torch.as_tensor(s, device=dev), executed, torch.as_tensor(r, device=dev),
-                     torch.as_tensor(s2, device=dev), torch.as_tensor(done, device=dev), torch.as_tensor(active))
+    learned = executed if cfg.agent.critic_action == "executed" else action.to(dev, torch.float32)
+    agent.replay.add(torch.as_tensor(s, device=dev), learned, torch.as_tensor(r, device=dev),
+                     torch.as_tensor(s2, device=dev), torch.as_tensor(done, device=dev), torch.as_tensor(active),
+                     executed_action=executed)
     for _ in range(cfg.agent.updates_per_step):
         agent.update(torch.as_tensor(active))
     act_rows = torch.as_tensor(active, device=dev)

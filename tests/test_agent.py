@@ -231,3 +231,59 @@ def test_hand_gradients_match_autograd(normalize):
     for k in range(3):
         for p, q in zip(params_of(fused, k), params_of(ref, k)):
             torch.testing.assert_close(p, q, rtol=1e-5, atol=1e-6)
+
+
+def test_feasible_range_from_arm_positions():
+    """Joint-angle changes that keep both joints in [0, 180], recovered from the positions alone."""
+    from apac_mj.kinematics import motion_function
+
+    agent = Agent(small_cfg(), [0])
+    for alpha, beta, l1, l2 in [(0, 180, 5, 8), (90, 45, 5, 8), (180, 0, 6, 9), (30, 120, 5.5, 8.4)]:
+        end, elbow = motion_function(alpha, beta, l1, l2, (15, 15))
+        s = torch.tensor([[[*end, *elbow, 1.0, 1.0]]], dtype=torch.float32)
+        lo, hi = agent._feasible_range(s)
+        torch.testing.assert_close(lo[0, 0], torch.tensor([-alpha, -beta], dtype=torch.float32), atol=1e-3, rtol=0)
+        torch.testing.assert_close(hi[0, 0], torch.tensor([180 - alpha, 180 - beta], dtype=torch.float32),
+                                   atol=1e-3, rtol=0)
+        cmd = torch.tensor([[[-alpha - 30.0, 180 - beta + 50.0]]]) / 180  # both beyond a limit
+        torch.testing.assert_close(agent._excess(s, cmd)[0, 0], torch.tensor([-30.0, 50.0]) / 180, atol=1e-5,
+                                   rtol=0)
+
+
+def test_feasibility_penalty_gradients_match_autograd_and_pull_commands_back():
+    """A saturated actor commanding beyond the joint limits: hand gradients == autograd, and the
+    penalty (not the paper's; feasibility_weight=0 turns it off) moves the command back."""
+    cfg = small_cfg(feasibility_weight=1000.0, actor_lr=1e-3)
+    fused, ref = Agent(cfg, [0, 1]), Agent(cfg, [0, 1])
+    start = torch.tensor([12.0, 15.0, 20.0, 15.0, 9.0, 14.0])  # shoulder 0, elbow 180: only (+, -) moves are possible
+    for ag in (fused, ref):
+        with torch.no_grad():
+            ag.actor.layers[-1].bias.copy_(torch.tensor([[-3.0, 3.0]]).expand(2, 1, 2))  # tanh ~ (-1, +1): (-180, +180) degrees
+    before = fused.actor_action(start.expand(2, 6).clone())
+    for t in range(5):
+        s = start.expand(2, 6).clone()
+        for ag in (fused, ref):
+            ag.replay.add(s, torch.zeros(2, 2), -torch.ones(2), s, torch.zeros(2), [True, True])
+        lf, lr = fused.update([True, True]), ref._update_autograd([True, True])
+        torch.testing.assert_close(lf["actor"], lr["actor"], rtol=1e-5, atol=1e-4)
+        assert (lf["actor"] > 100).all()  # the penalty dominates while the command is far out of range
+    for k in range(2):
+        for p, q in zip(params_of(fused, k), params_of(ref, k)):
+            torch.testing.assert_close(p, q, rtol=1e-5, atol=1e-6)
+    after = fused.actor_action(start.expand(2, 6).clone())
+    assert (after[:, 0] > before[:, 0]).all() and (after[:, 1] < before[:, 1]).all()
+
+
+def test_replay_keeps_commanded_and_executed_actions_apart():
+    """critic_action="commanded": the critic learns the command, the inverse model the executed change."""
+    ag = Agent(small_cfg(), [0])
+    s = torch.rand(1, 6) * 30
+    ag.replay.add(s, torch.tensor([[-170.0, 170.0]]), -torch.ones(1), s, torch.zeros(1), [True],
+                  executed_action=torch.tensor([[0.0, 0.0]]))
+    b = ag.replay.sample(3, [0])
+    assert (b["action"][0] == torch.tensor([-170.0, 170.0])).all()
+    assert (b["executed_action"][0] == 0).all()
+    state = ag.replay.state_dict()
+    del state["data"]["executed_action"]
+    with pytest.raises(ValueError, match="executed_action"):
+        Agent(small_cfg(), [0]).replay.load_state_dict(state)
