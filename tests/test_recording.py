@@ -240,3 +240,13 @@ def test_record_command_loads_a_run(tiny_run, tmp_path):
     # the run finished 3 training episodes: the arbitrator sees episode 3 (past planning_episodes=1)
     assert set(entities[R.DISTANCE].times["episode"]) == {3}
     assert main(["record", "--run", str(run_dir), "--member", "2", "--out", str(tmp_path / "x.rrd")]) == 2
+
+
+def test_dashed_forward_model_arm_geometry():
+    """The predicted arm is drawn as dashes: every other piece of length ``dash`` along each segment."""
+    strip = np.array([[15.0, 15.0], [21.0, 15.0], [21.0, 18.0]])  # segments of 6 and 3 cm
+    dashes = R._dashed(strip, dash=0.6)
+    assert dashes.shape == (5 + 3, 2, 2)  # 10 pieces -> 5 dashes; 5 pieces -> 3 dashes
+    np.testing.assert_allclose(dashes[:5, 0, 0], 15.0 + np.arange(5) * 1.2)
+    np.testing.assert_allclose(np.linalg.norm(dashes[:, 1] - dashes[:, 0], axis=1), 0.6)
+    np.testing.assert_allclose(dashes[5:, :, 0], 21.0)
