@@ -222,6 +222,30 @@ def fig_training_success(metrics: pd.DataFrame, path: Path) -> Path:
                                           "mean over seeds, 95% CI band)")
 
 
+LOSSES = (("critic_loss", "critic: TD loss"), ("actor_loss", "actor: -Q(s, pi(s)) (+ penalty)"),
+          ("forward_loss", "forward model: MSE (cm^2)"), ("inverse_loss", "inverse model: MSE (deg^2)"))
+
+
+def fig_losses(metrics: pd.DataFrame, path: Path) -> Path:
+    """Training losses per episode (mean of the episode's updates): rows conditions, columns networks."""
+    train = metrics[(metrics["phase"] == "train") & (metrics["region"] == "all")]
+    agents, conds, w = _agents(train), _conditions(train), _window(train)
+    axes = _axes(len(conds), len(LOSSES), h=2.9)
+    for r, cond in enumerate(conds):
+        for c, (column, label) in enumerate(LOSSES):
+            ax = axes[r, c]
+            for agent in agents:
+                sel = train[(train["agent"] == agent) & (train["condition"] == cond)]
+                if len(sel) and sel[column].notna().any():
+                    x, m, _, _ = _smooth_band(sel, column, w)
+                    ax.plot(x, m, color=AGENT_COLOR[agent], label=AGENT_LABEL[agent], lw=1.2)
+            if column != "actor_loss":
+                ax.set_yscale("log")
+            _style(ax, f"{COND_LABEL[cond]}\n{label}", "training episode", "loss (mean over seeds)")
+    return _save(axes[0, 0].figure, path, f"Training losses per episode (mean of the episode's updates; "
+                                          f"moving average over {w} episodes, mean over seeds)")
+
+
 def _style(ax: plt.Axes, title: str, xlabel: str, ylabel: str, ylim: tuple[float, float] | None = None) -> None:
     ax.set_title(title, fontsize=10)
     ax.set_xlabel(xlabel)
@@ -411,6 +435,9 @@ def write_report(results: str | Path, out: str | Path | None = None, title: str 
         Figure("fig9_occluded.png", "Occluded vision: final distance to the target (paper Fig. 9).",
                lambda: fig_occluded(tests, out / "fig9_occluded.png")),
     ]
+    if all(c in metrics and metrics[c].notna().any() for c, _ in LOSSES):  # older results lack the columns
+        figures.append(Figure("fig10_losses.png", "Training losses per episode (not in the paper).",
+                              lambda: fig_losses(metrics, out / "fig10_losses.png")))
     for f in figures:
         f.make()
     manifest = read_json(results / MANIFEST) or {}

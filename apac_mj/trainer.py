@@ -65,7 +65,10 @@ KEEP_CHECKPOINTS = 3
 #: Episodes (all seeds) in the progress bar's running success rate and habit share.
 PROGRESS_WINDOW = 20
 METRIC_COLUMNS = ("seed", "episode", "phase", "success", "steps", "return", "final_distance", "habit_actions",
-                  "planning_actions", "l1", "l2", "target_x", "target_y")
+                  "planning_actions", "l1", "l2", "target_x", "target_y", "critic_loss", "actor_loss",
+                  "forward_loss", "inverse_loss")
+#: The agent's losses (``Agent.update``) in the order of the ``*_loss`` metric columns.
+LOSS_NAMES = ("critic", "actor", "forward", "inverse")
 CKPT_KEYS = ("config", "loop", "agent", "env", "babbling_generators", "metric_rows")
 
 
@@ -89,7 +92,14 @@ class LoopState:
     habit_n: np.ndarray      # [E] habitual actions this episode
     plan_n: np.ndarray       # [E] planning actions this episode
     state: torch.Tensor      # [E, 6] the integrator's state estimate
+    loss_sum: np.ndarray | None = None  # [E, 4] sums of this episode's losses (LOSS_NAMES order)
+    loss_n: np.ndarray | None = None    # [E] updates counted in loss_sum
     checkpoints_done: int = 0
+
+    def __post_init__(self) -> None:
+        E = len(self.episode)
+        self.loss_sum = np.zeros((E, len(LOSS_NAMES))) if self.loss_sum is None else self.loss_sum
+        self.loss_n = np.zeros(E, dtype=np.int64) if self.loss_n is None else self.loss_n
 
     @classmethod
     def fresh(cls, E: int, babbling: int, device: torch.device) -> "LoopState":
@@ -173,6 +183,7 @@ def _start_episodes(loop: LoopState, active: np.ndarray, env: VecEnv, agent: Age
     agent.noise.reset(torch.as_tensor(starting))
     loop.step[starting], loop.last_delta[starting], loop.ret[starting] = 0, np.nan, 0.0
     loop.habit_n[starting], loop.plan_n[starting], loop.need_reset[starting] = 0, 0, False
+    loop.loss_sum[starting], loop.loss_n[starting] = 0.0, 0
     if on_episode_start is not None:
         on_episode_start(starting.copy(), env)
 
@@ -196,7 +207,11 @@ def _step(cfg: TrainConfig, loop: LoopState, active: np.ndarray, env: VecEnv, ag
                      torch.as_tensor(s2, device=dev), torch.as_tensor(done, device=dev), torch.as_tensor(active),
                      executed_action=executed)
     for _ in range(cfg.agent.updates_per_step):
-        agent.update(torch.as_tensor(active))
+        losses = agent.update(torch.as_tensor(active))
+        values = np.stack([losses[n].detach().float().cpu().numpy() for n in LOSS_NAMES], axis=1)
+        updated = np.isfinite(values).all(axis=1)
+        loop.loss_sum[updated] += values[updated]
+        loop.loss_n += updated
     act_rows = torch.as_tensor(active, device=dev)
     loop.state = torch.where(act_rows[:, None], torch.as_tensor(s2, device=dev), loop.state)
     loop.last_delta = np.where(active, info.delta, loop.last_delta)
@@ -242,7 +257,9 @@ def _finish_episodes(loop: LoopState, info: StepInfo, seeds: list[int]) -> list[
                      "final_distance": float(info.distance[k]), "habit_actions": int(loop.habit_n[k]),
                      "planning_actions": int(loop.plan_n[k]), "l1": float(info.link_lengths[k, 0]),
                      "l2": float(info.link_lengths[k, 1]), "target_x": float(info.target[k, 0]),
-                     "target_y": float(info.target[k, 1])})
+                     "target_y": float(info.target[k, 1]),
+                     **{f"{n}_loss": float(loop.loss_sum[k, i] / loop.loss_n[k]) if loop.loss_n[k] else float("nan")
+                        for i, n in enumerate(LOSS_NAMES)}})
         loop.episode[k] += 1
         loop.need_reset[k] = True
     return rows

@@ -18,7 +18,7 @@ from apac_mj import grid, report
 from apac_mj.cli import main
 
 FIGURES = ["fig3_training_success.png", "fig4_test.png", "fig5_arbitration.png", "fig6_steps_time.png",
-           "fig7_trajectories.png", "fig8_generalization.png", "fig9_occluded.png"]
+           "fig7_trajectories.png", "fig8_generalization.png", "fig9_occluded.png", "fig10_losses.png"]
 
 
 def _metrics(rng: np.random.Generator, agent: str, seeds, episodes: int) -> pd.DataFrame:
@@ -31,7 +31,9 @@ def _metrics(rng: np.random.Generator, agent: str, seeds, episodes: int) -> pd.D
                              success=bool(rng.random() < 0.6), steps=steps, **{"return": -float(rng.random() * 50)},
                              final_distance=float(rng.random() * 3), habit_actions=habit,
                              planning_actions=steps - habit, l1=5.0, l2=8.0,
-                             target_x=float(rng.random() * 30), target_y=float(rng.random() * 30)))
+                             target_x=float(rng.random() * 30), target_y=float(rng.random() * 30),
+                             critic_loss=float(rng.random() * 10), actor_loss=float(rng.normal() * 5),
+                             forward_loss=float(rng.random()), inverse_loss=float(rng.random() * 100)))
     return pd.DataFrame(rows)
 
 

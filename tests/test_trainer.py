@@ -205,3 +205,28 @@ def test_vec_env_state_roundtrip_mid_episode(task, actuation):
     np.testing.assert_array_equal(play(restored, actions[7:]), reference)
     with pytest.raises(ValueError, match="seeds"):
         VecEnv(task, [5, 6], actuation).set_state(state)
+
+
+def test_episode_losses_are_the_mean_of_the_updates(tmp_path, monkeypatch):
+    """The *_loss columns hold the mean of the losses Agent.update returned during that episode."""
+    from apac_mj import agent as agent_mod
+
+    seen: list[dict[str, np.ndarray]] = []
+    original = agent_mod.Agent.update
+
+    def spy(self, active):
+        out = original(self, active)
+        seen.append({k: v.clone().numpy() for k, v in out.items()})
+        return out
+
+    monkeypatch.setattr(agent_mod.Agent, "update", spy)
+    run = train(tiny_config(seeds=(0,), episodes=3, agent="spac"), tmp_path / "run", progress=False)
+    df = pd.read_parquet(run / "metrics.parquet")
+    assert len(seen) == int(df.steps.sum())  # one update per step, babbling included
+    start = 0
+    for _, row in df.iterrows():
+        chunk = seen[start:start + int(row.steps)]
+        start += int(row.steps)
+        for name in ("critic", "actor", "forward", "inverse"):
+            assert row[f"{name}_loss"] == pytest.approx(np.mean([c[name][0] for c in chunk]), rel=1e-6)
+    assert (df[["critic_loss", "forward_loss", "inverse_loss"]] >= 0).all().all()
