@@ -15,9 +15,9 @@ examples:
 
 The run directory gets config.json (the resolved config and git commit), metrics.parquet (one row
 per seed and episode: success, steps, return, final distance, habit and planning action counts,
-link lengths, target), checkpoints/ (periodic and final) and DONE when finished. Re-running the
-same command resumes from the last checkpoint with the same numbers as an uninterrupted run; a
-different config for an existing directory is an error."""
+link lengths, target, mean losses of the four networks), checkpoints/ (periodic and final) and
+DONE when finished. Re-running the same command resumes from the last checkpoint with the same
+numbers as an uninterrupted run; a different config for an existing directory is an error."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
