@@ -89,6 +89,10 @@ class AgentConfig:
     #: Weight of a penalty on actor commands beyond the joint limits (the plant clips them, so the
     #: critic never sees them and extrapolates; 0 = the paper, no penalty).
     feasibility_weight: float = 1000.0
+    #: Habit formation from planning (not in the paper; 0 = off): the actor's loss adds
+    #: ``w * mean |pi(s) - f_I(s)|^2 / action_scale^2``, pulling the habit towards what the inverse
+    #: model proposes in the same state (the inverse model is not changed by it).
+    habit_distillation_weight: float = 0.0
 
     #: Proposals from the target actor (the paper's text says so) instead of
     #: the online actor (standard DDPG, default).
