@@ -56,6 +56,8 @@ class Agent:
         torch.set_flush_denormal(True)
         self.cfg, self.seeds, self.precision = cfg, [int(s) for s in seeds], precision
         self.E = len(self.seeds)
+        #: Habit formation from planning acts in APAC only: DDPG has no planner to learn from, SPAC no habit.
+        self._distill = cfg.habit_distillation_weight if cfg.agent == "apac" else 0.0
         gens = [member_generators(s) for s in self.seeds]
         init = [g[0] for g in gens]
         self.actor = build_actor(cfg.actor_hidden, cfg.action_scale, init).to(self.device)
@@ -269,12 +271,12 @@ class Agent:
         if not cfg.normalize_inputs:
             dpi.mul_(cfg.action_scale)
         loss = -q_pi.mean(1)
-        if cfg.habit_distillation_weight > 0:
+        if self._distill > 0:
             # habit formation from planning: pull pi(s) towards the inverse model's proposal f_I(s)
             plan = mlp_forward(self._ws, "inverse_model.distill", W["inverse_model"], "relu", "tanh", x)[-1]
             gap = xs[-1].float() - plan.float()
-            dpi.add_((gap * (2.0 * cfg.habit_distillation_weight / B)).to(dpi.dtype))
-            loss = loss + cfg.habit_distillation_weight * gap.pow(2).sum(-1).mean(1)
+            dpi.add_((gap * (2.0 * self._distill / B)).to(dpi.dtype))
+            loss = loss + self._distill * gap.pow(2).sum(-1).mean(1)
         if cfg.feasibility_weight > 0:
             excess = self._excess(s, xs[-1].float())
             dpi.add_((excess * (2.0 * cfg.feasibility_weight / B)).to(dpi.dtype))
@@ -339,11 +341,11 @@ class Agent:
         pi = self.actor(x)
         q_pi = self.critic.head(features.detach(), self._act(pi), detach=True).float()
         actor_loss = -q_pi.mean(1)
-        if self.cfg.habit_distillation_weight > 0:
+        if self._distill > 0:
             with torch.no_grad():
                 plan = self.inverse_model(x).float() / self.cfg.action_scale
             gap = pi.float() / self.cfg.action_scale - plan
-            actor_loss = actor_loss + self.cfg.habit_distillation_weight * gap.pow(2).sum(-1).mean(1)
+            actor_loss = actor_loss + self._distill * gap.pow(2).sum(-1).mean(1)
         if self.cfg.feasibility_weight > 0:
             excess = self._excess(s, pi.float() / self.cfg.action_scale)
             actor_loss = actor_loss + self.cfg.feasibility_weight * excess.pow(2).sum(-1).mean(1)

@@ -91,7 +91,8 @@ class AgentConfig:
     feasibility_weight: float = 1000.0
     #: Habit formation from planning (not in the paper; 0 = off): the actor's loss adds
     #: ``w * mean |pi(s) - f_I(s)|^2 / action_scale^2``, pulling the habit towards what the inverse
-    #: model proposes in the same state (the inverse model is not changed by it).
+    #: model proposes in the same state (the inverse model is not changed by it). APAC only: ignored
+    #: for "ddpg" (no planner to learn from; it would stop being DDPG) and "spac" (the habit never acts).
     habit_distillation_weight: float = 0.0
 
     #: Proposals from the target actor (the paper's text says so) instead of
