@@ -8,7 +8,7 @@ A small, real version of the paper's study on this machine (no service needed):
 DDPG, SPAC and APAC trained on changing_target for a few seeds and a few hundred
 episodes (preset tasks/presets/demo.toml), tested on the angle-grid targets and
 under occluded vision, reported as the paper's figures and key-number table,
-and one episode of the trained APAC recorded with Rerun. About 10 minutes on a
+and three episodes of the trained APAC recorded with Rerun. About 10 minutes on a
 2-core CPU. Re-running resumes where it stopped; it prints where the figures,
 the table and the recording are.
 
@@ -25,8 +25,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", default="results/demo", help="results directory (default: results/demo)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a preset field, repeatable (e.g. seeds=3, episodes=300)")
-    p.add_argument("--record-episodes", type=int, default=1,
-                   help="episodes of the trained APAC to record (default 1; 0 = no recording)")
+    p.add_argument("--record-episodes", type=int, default=3,
+                   help="episodes of the trained APAC to record (default 3; 0 = no recording)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=run)
 
