@@ -49,7 +49,7 @@ PLANNING_COST, HABIT_COST = 3, 1
 #: Environment zone radius in the occluded protocol: its reach test never fires.
 _NO_REACH_RADIUS = 1e-9
 COLUMNS = ("seed", "target_index", "target_x", "target_y", "success", "steps", "final_distance", "habit_actions",
-           "planning_actions", "time_cost")
+           "planning_actions", "time_cost", "judged_reached")
 
 
 def load_run(run_dir: Path, device: str | None = None) -> tuple[TrainConfig, Agent, dict[str, Any]]:
@@ -181,6 +181,7 @@ def _episode(cfg: TrainConfig, agent: Agent, arbitrator: Arbitrator, env: VecEnv
     last_delta = np.full(E, np.nan)
     path = [[env.true_arm()[k, :2].copy()] for k in range(E)]
     after_planning = np.full(E, cfg.agent.planning_episodes, dtype=np.int64)
+    judged = np.zeros(E, dtype=bool)
     while running.any():
         action, habit = select_action(agent, arbitrator, state, after_planning, step, last_delta, running,
                                       explore=False)
@@ -197,19 +198,23 @@ def _episode(cfg: TrainConfig, agent: Agent, arbitrator: Arbitrator, env: VecEnv
         for k in np.flatnonzero(running):
             path[k].append(info.true_arm[k, :2].copy())
         stop = info.done | (info.terminal if occluded else np.zeros(E, dtype=bool))
+        judged |= running & stop & info.terminal
         running &= ~stop
-    return [_row(env, k, index, step, habit_n, plan_n, path, spec.zone_radius) for k in np.flatnonzero(members)]
+    return [_row(env, k, index, step, habit_n, plan_n, path, spec.zone_radius, bool(judged[k]))
+            for k in np.flatnonzero(members)]
 
 
 def _row(env: VecEnv, k: int, index: int, step: np.ndarray, habit_n: np.ndarray, plan_n: np.ndarray,
-         path: list[list[np.ndarray]], zone_radius: float) -> dict[str, Any]:
+         path: list[list[np.ndarray]], zone_radius: float, judged: bool) -> dict[str, Any]:
+    """One result row; ``judged_reached``: the episode ended because the agent judged the target
+    reached (with vision: it was; occluded: the forward model's estimate was inside the zone)."""
     target = env.targets()[k]
     distance = float(env.distances()[k])
     p = np.array(path[k])
     return {"seed": env.seeds[k], "target_index": index, "target_x": float(target[0]), "target_y": float(target[1]),
             "success": distance <= zone_radius, "steps": int(step[k]), "final_distance": distance,
             "habit_actions": int(habit_n[k]), "planning_actions": int(plan_n[k]),
-            "time_cost": time_cost(int(habit_n[k]), int(plan_n[k])),
+            "time_cost": time_cost(int(habit_n[k]), int(plan_n[k])), "judged_reached": judged,
             "path_x": p[:, 0].tolist(), "path_y": p[:, 1].tolist()}
 
 
@@ -232,8 +237,18 @@ def summarize(df: pd.DataFrame, zone_radius: float) -> dict[str, Any]:
             "final_distance_mean": float(df.final_distance.mean()),
             "final_distance_min": float(df.final_distance.min()),
             "final_distance_max": float(df.final_distance.max()), "zone_radius": zone_radius,
+            **_judged_summary(df),
             "success_rate_per_seed": {str(int(s)): float(v) for s, v in per_seed.items()},
             "targets_per_seed": {str(int(s)): int(v) for s, v in df.groupby("seed").size().items()}}
+
+
+def _judged_summary(df: pd.DataFrame) -> dict[str, Any]:
+    """Share of episodes the agent ended judging the target reached, and their real final distance."""
+    if "judged_reached" not in df:
+        return {}
+    judged = df[df.judged_reached]
+    return {"judged_reached_rate": float(df.judged_reached.mean()),
+            "final_distance_judged_mean": float(judged.final_distance.mean()) if len(judged) else None}
 
 
 def _read_summary(run_dir: Path) -> dict[str, Any]:
