@@ -34,6 +34,9 @@ def test_wheel_contains_model_and_task_files(wheel):
     tasks = {p.name for p in (REPO / "tasks").glob("*.toml")}
     assert len(tasks) == 12
     assert {f"apac_mj/tasks/{t}" for t in tasks} <= names
+    presets = {p.name for p in (REPO / "tasks" / "presets").glob("*.toml")}
+    assert {"paper.toml", "quick.toml", "smoke.toml", "demo.toml"} <= presets
+    assert {f"apac_mj/tasks/presets/{t}" for t in presets} <= names
     assert "apac_mj/suite/planar_arm.py" in names and "apac_mj/commands/check_kinematics.py" in names
 
 
