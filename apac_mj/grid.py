@@ -21,9 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 import re
-import tempfile
 import time
 import tomllib
 from collections.abc import Callable, Sequence
@@ -444,17 +442,9 @@ def _tag(df: pd.DataFrame, info: dict[str, Any], **extra: str) -> pd.DataFrame:
 
 def atomic_write_text(path: Path, text: str) -> None:
     """Write to a temporary file in the same directory, fsync, then rename over ``path``."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    from apac_mj.checkpoint import atomic_write_bytes
+
+    atomic_write_bytes(Path(path), lambda f: f.write(text.encode()))
 
 
 def read_json(path: Path) -> dict[str, Any] | None:

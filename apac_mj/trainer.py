@@ -208,7 +208,7 @@ def _step(cfg: TrainConfig, loop: LoopState, active: np.ndarray, env: VecEnv, ag
                      executed_action=executed)
     for _ in range(cfg.agent.updates_per_step):
         losses = agent.update(torch.as_tensor(active))
-        values = np.stack([losses[n].detach().float().cpu().numpy() for n in LOSS_NAMES], axis=1)
+        values = torch.stack([losses[n] for n in LOSS_NAMES], dim=1).float().cpu().numpy()  # one transfer
         updated = np.isfinite(values).all(axis=1)
         loop.loss_sum[updated] += values[updated]
         loop.loss_n += updated

@@ -9,14 +9,6 @@ import torch
 from apac_mj.agent import LOSSES, NETWORKS, Agent
 from apac_mj.config import AgentConfig
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    """Correctness tests need no intra-op threads; on a shared 2-core machine they cost 10x."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
 
 SMALL = dict(actor_hidden=(24, 16), critic_hidden=(24, 16), forward_hidden=(24, 16),
              inverse_hidden=(24, 16), replay_size=12, batch_size=8)

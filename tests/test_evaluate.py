@@ -6,7 +6,6 @@ import json
 import numpy as np
 import pandas as pd
 import pytest
-import torch
 
 from apac_mj.config import AgentConfig, TrainConfig
 from apac_mj.evaluate import COLUMNS, evaluate, evaluation_targets, time_cost
@@ -14,7 +13,6 @@ from apac_mj.kinematics import angle_grid, motion_function
 from apac_mj.suite import load_spec
 from apac_mj.trainer import train
 
-torch.set_num_threads(1)
 
 TINY = dict(actor_hidden=(16, 16), critic_hidden=(16, 16), forward_hidden=(16, 16), inverse_hidden=(16, 16),
             batch_size=8, replay_size=64, babbling_episodes=1, planning_episodes=2)

@@ -21,12 +21,10 @@ from __future__ import annotations
 
 import pandas as pd
 import pytest
-import torch
 
 from apac_mj.config import AgentConfig, TrainConfig
 from apac_mj.trainer import train
 
-torch.set_num_threads(1)
 
 SMALL = dict(actor_hidden=(32, 32), critic_hidden=(32, 32), forward_hidden=(32, 32), inverse_hidden=(32, 32),
              batch_size=32, babbling_episodes=3)

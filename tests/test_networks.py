@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 import torch
 
@@ -14,15 +15,6 @@ from apac_mj.integrator import integrate
 from apac_mj.networks import EnsembleLinear, build_actor, build_critic
 from apac_mj.noise import OUNoise
 from apac_mj.optim import EnsembleAdam
-
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    """Correctness tests need no intra-op threads; on a shared 2-core machine they cost 10x."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
 
 
 def gens(seeds, which=0):
@@ -171,3 +163,12 @@ def test_integrator():
     assert out[:, 0].tolist() == [0.0, 1.0, 0.0]
     with pytest.raises(ValueError, match="vision"):
         integrate(obs, pred, torch.tensor([True]))
+
+
+def test_ou_sigma_annealing():
+    """ou_sigma_initial -> ou_sigma linearly over ou_sigma_anneal_episodes; the noise scales with it."""
+    cfg = AgentConfig(ou_sigma=2.0, ou_sigma_initial=60.0, ou_sigma_anneal_episodes=100)
+    np.testing.assert_allclose(cfg.ou_sigma_at(np.array([-5, 0, 50, 100, 400])), [60.0, 60.0, 31.0, 2.0, 2.0])
+    np.testing.assert_allclose(AgentConfig(ou_sigma=2.0).ou_sigma_at(np.array([0, 500])), [2.0, 2.0])
+    small, big = (OUNoise([torch.Generator().manual_seed(7)], sigma=2.0) for _ in range(2))
+    torch.testing.assert_close(big.sample(sigma=[6.0]), 3 * small.sample())

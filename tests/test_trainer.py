@@ -13,7 +13,6 @@ from apac_mj import checkpoint
 from apac_mj.config import AgentConfig, TrainConfig
 from apac_mj.trainer import METRIC_COLUMNS, train
 
-torch.set_num_threads(1)  # tiny networks: threads only add overhead on a shared 2-core machine
 
 TINY = dict(actor_hidden=(16, 16), critic_hidden=(16, 16), forward_hidden=(16, 16), inverse_hidden=(16, 16),
             batch_size=8, replay_size=64, babbling_episodes=1, planning_episodes=2)
@@ -230,3 +229,18 @@ def test_episode_losses_are_the_mean_of_the_updates(tmp_path, monkeypatch):
         for name in ("critic", "actor", "forward", "inverse"):
             assert row[f"{name}_loss"] == pytest.approx(np.mean([c[name][0] for c in chunk]), rel=1e-6)
     assert (df[["critic_loss", "forward_loss", "inverse_loss"]] >= 0).all().all()
+
+
+@pytest.mark.parametrize("critic_action", ["executed", "commanded"])
+def test_replay_action_for_the_critic(tmp_path, critic_action):
+    """The inverse model's label is always the executed change; the critic's action is the command
+    (clipped by the joint limits only in the executed version) when critic_action="commanded"."""
+    run = train(tiny_config(seeds=(0,), episodes=2, critic_action=critic_action), tmp_path / "run", progress=False)
+    replay = checkpoint.load(run / "checkpoints" / "latest.pt")["agent"]["replay"]
+    n = replay["count"][0]
+    learned, executed = replay["data"]["action"][0, :n], replay["data"]["executed_action"][0, :n]
+    clipped = (learned - executed).abs().amax(-1) > 1e-3
+    if critic_action == "executed":
+        assert torch.equal(learned, executed)
+    else:  # some commands left the joint range (measured: 5 of the 64 transitions kept)
+        assert clipped.any()
