@@ -6,8 +6,9 @@ Modes (``AgentConfig.agent``):
 * ``spac``: always the inverse model (exclusive planning);
 * ``apac``: the inverse model during the first ``planning_episodes`` (100)
   training episodes; after that the actor on the first ``habit_first_steps``
-  (2) steps of each episode, then the actor if ``|delta|`` of the member's
-  last transition is below ``delta_threshold`` (1), else the inverse model.
+  (2) steps of each episode, then the actor if ``|delta|`` (``delta_rule="abs"``)
+  or ``delta`` (``"signed"``, Algorithm 2's "RPE < 1") of the member's last
+  transition is below ``delta_threshold`` (1), else the inverse model.
   A NaN delta (no last transition) counts as unreliable.
 """
 from __future__ import annotations
@@ -27,6 +28,7 @@ class Arbitrator:
         self.planning_episodes = cfg.planning_episodes
         self.habit_first_steps = cfg.habit_first_steps
         self.delta_threshold = cfg.delta_threshold
+        self.delta_rule = cfg.delta_rule
 
     def use_habit(self, episode: torch.Tensor, step: torch.Tensor, last_delta: torch.Tensor) -> torch.Tensor:
         """``[E]`` training episode (0-based), step in episode (0-based), last |delta| -> ``[E]`` bool."""
@@ -39,6 +41,7 @@ class Arbitrator:
             return torch.ones(episode.shape, dtype=torch.bool, device=episode.device)
         if self.mode == "spac":
             return torch.zeros(episode.shape, dtype=torch.bool, device=episode.device)
-        reliable = last_delta.abs().to(episode.device) < self.delta_threshold
+        signal = last_delta.abs() if self.delta_rule == "abs" else last_delta
+        reliable = signal.to(episode.device) < self.delta_threshold
         habit = (step < self.habit_first_steps) | reliable
         return habit & (episode >= self.planning_episodes)

@@ -22,8 +22,17 @@ class AgentConfig:
     # -- networks (Table 2) --------------------------------------------------
     #: Actor hidden layers (relu); output 2 x tanh x action_scale.
     actor_hidden: tuple[int, int] = (400, 300)
-    #: Critic: state -> 400 relu; [300 from layer 1, 300 from the action] -> 600 relu -> 1.
+    #: Critic hidden layers (relu); output 1 (linear).
     critic_hidden: tuple[int, int] = (400, 600)
+    #: How state and action enter the critic (networks.EnsembleCritic): "concat" (Table 2 read
+    #: literally: [s, a] (8) -> 400 -> 600 -> 1) or "summed" (the DDPG code: s -> 400;
+    #: relu(W h1 + W_a a) (600) -> 1). "separable" (Q = V(s) + A(a), the old bug) is refused
+    #: here: it exists only as the tests' negative control.
+    critic_form: str = "concat"
+    #: How the actor's and the inverse model's tanh outputs u in [-1, 1] become joint-angle changes:
+    #: "tanh" (the paper: 180 u) or "feasible" (lo + (hi - lo)(u + 1)/2 with [lo, hi] the changes
+    #: that keep both joints inside their range from the current pose: no command past a limit).
+    action_squash: str = "tanh"
     #: Forward model hidden layers (sigmoid); output 4 x sigmoid x plane_scale.
     forward_hidden: tuple[int, int] = (400, 300)
     #: Inverse model hidden layers (relu); output 2 x tanh x action_scale.
@@ -62,8 +71,11 @@ class AgentConfig:
     planning_episodes: int = 100
     #: After that, the actor acts on the first steps of every episode.
     habit_first_steps: int = 2
-    #: Then the actor acts if |delta| of the last transition is below this.
+    #: Then the actor acts if delta of the last transition is below this.
     delta_threshold: float = 1.0
+    #: What is compared with the threshold: "abs" (|delta| < 1: the critic predicted the last
+    #: reward well) or "signed" (delta < 1, Algorithm 2 read literally: "RPE < 1").
+    delta_rule: str = "abs"
 
     # -- motor babbling -------------------------------------------------------
     #: Episodes of random actions before learning (the paper gives no number).
@@ -116,6 +128,10 @@ class AgentConfig:
             v = getattr(self, name)
             if not (0 < v <= 1):
                 raise ValueError(f"{name} must be in (0, 1], got {v}")
+        for name, choices in (("critic_form", ("concat", "summed")), ("action_squash", ("tanh", "feasible")),
+                              ("delta_rule", ("abs", "signed"))):
+            if getattr(self, name) not in choices:
+                raise ValueError(f"{name} must be one of {choices}, got {getattr(self, name)!r}")
         if self.critic_action not in ("executed", "commanded"):
             raise ValueError(f"critic_action must be 'executed' or 'commanded', got {self.critic_action!r}")
         if self.ou_sigma < 0 or (self.ou_sigma_initial is not None and self.ou_sigma_initial < 0):
@@ -142,7 +158,16 @@ class TrainConfig:
     checkpoint_every: int = 50
     #: Arm actuation: "servo" (MuJoCo position servos) or "kinematic".
     actuation: str = "servo"
+    #: TaskSpec fields that replace the task file's (e.g. {"at_limit": "unbounded"}); empty: the file as it is.
+    task_overrides: dict[str, Any] = dataclasses.field(default_factory=dict)
     agent: AgentConfig = dataclasses.field(default_factory=AgentConfig)
+
+
+def task_spec(cfg: TrainConfig):
+    """The run's task: ``tasks/<cfg.task>.toml`` with ``cfg.task_overrides`` applied."""
+    from apac_mj.suite import load_spec
+
+    return load_spec(cfg.task).replace(**cfg.task_overrides)
 
 
 def to_dict(cfg: Any) -> dict[str, Any]:

@@ -36,8 +36,8 @@ from tqdm.auto import tqdm
 from apac_mj import checkpoint
 from apac_mj.agent import Agent
 from apac_mj.arbitrator import Arbitrator
-from apac_mj.config import TrainConfig, train_config_from_dict
-from apac_mj.kinematics import angle_grid, motion_function
+from apac_mj.config import TrainConfig, task_spec, train_config_from_dict
+from apac_mj.kinematics import Geometry, angle_grid, motion_function
 from apac_mj.rollout import OnEpisodeStart, OnStep, agent_step, observed_state, select_action
 from apac_mj.suite import load_spec
 from apac_mj.suite.task_spec import TaskSpec
@@ -64,7 +64,8 @@ def load_run(run_dir: Path, device: str | None = None) -> tuple[TrainConfig, Age
     if device is not None:
         cfg.device = device
     ckpt = checkpoint.load(run_dir / "checkpoints" / "latest.pt", required=("agent", "env"))
-    agent = Agent(cfg.agent, list(cfg.seeds), device=cfg.device, precision=cfg.precision)
+    agent = Agent(cfg.agent, list(cfg.seeds), device=cfg.device, precision=cfg.precision,
+                  geometry=Geometry.from_spec(task_spec(cfg)))
     agent.load_state_dict(ckpt["agent"])
     return cfg, agent, ckpt
 
@@ -87,7 +88,7 @@ def evaluate(run_dir: str | Path, protocols: Sequence[str] = ("grid", "occluded"
         raise ValueError(f"region must be 'test' or 'train', got {region!r}")
     run_dir = Path(run_dir)
     cfg, agent, ckpt = load_run(run_dir, device)
-    spec = load_spec(cfg.task)
+    spec = task_spec(cfg)
     lengths = np.stack([m["task"]["lengths"].numpy() for m in ckpt["env"]["members"]])
     own = [m["task"]["static_target"] for m in ckpt["env"]["members"]]
     summary = _read_summary(run_dir)
@@ -139,7 +140,7 @@ def evaluation_targets(spec: TaskSpec, lengths: np.ndarray, own: list[Any], grid
 
 
 def _eval_env(cfg: TrainConfig, spec: TaskSpec, lengths: np.ndarray, occluded: bool) -> VecEnv:
-    overrides: dict[str, Any] = {"growth_start_episode": 2**31 - 1}
+    overrides: dict[str, Any] = {**cfg.task_overrides, "growth_start_episode": 2**31 - 1}
     if occluded:
         overrides.update(vision="occluded", zone_radius=_NO_REACH_RADIUS)
     else:

@@ -5,8 +5,14 @@ degrees, lengths in centimetres, exactly as in the paper.
 """
 from __future__ import annotations
 
+import dataclasses
+from typing import TYPE_CHECKING
+
 import numpy as np
 from numpy.typing import ArrayLike
+
+if TYPE_CHECKING:
+    import torch
 
 #: Shoulder position on the paper's 30 x 30 plane.
 DEFAULT_ORIGIN = (15.0, 15.0)
@@ -58,3 +64,49 @@ def angle_grid(n: int = 10, low: float = 0.0, high: float = 180.0) -> np.ndarray
     centres = low + step * (np.arange(n) + 0.5)
     alpha, beta = np.meshgrid(centres, centres, indexing="ij")
     return np.stack([alpha.ravel(), beta.ravel()], axis=-1)
+
+
+@dataclasses.dataclass(frozen=True)
+class Geometry:
+    """What the agent knows of the arm's geometry: the shoulder and the joints' range.
+
+    The task gives it (:meth:`from_spec`); ``joint_range`` None means unbounded joints
+    (the task's ``joints.at_limit = "unbounded"``).
+    """
+
+    origin: tuple[float, float] = DEFAULT_ORIGIN
+    #: (low, high) of both joints in degrees; None: no limit.
+    joint_range: tuple[float, float] | None = (0.0, 180.0)
+
+    @classmethod
+    def from_spec(cls, spec) -> "Geometry":
+        """The geometry of a :class:`apac_mj.suite.task_spec.TaskSpec`."""
+        from apac_mj.suite.planar_arm import JOINT_RANGE
+
+        return cls(origin=tuple(spec.origin), joint_range=JOINT_RANGE if spec.at_limit == "clip" else None)
+
+    def joint_angles(self, end: torch.Tensor, elbow: torch.Tensor) -> torch.Tensor:
+        """(shoulder, elbow) angles in degrees ``[..., 2]`` from the end and elbow positions ``[..., 2]`` (cm),
+        the inverse of Algorithm 1 (angles wrapped to [-90, 270))."""
+        import torch
+
+        o = torch.as_tensor(self.origin, dtype=end.dtype, device=end.device)
+        rel, arm = elbow - o, end - elbow
+        alpha = torch.rad2deg(torch.atan2(rel[..., 1], rel[..., 0]))
+        total = torch.rad2deg(torch.atan2(arm[..., 1], arm[..., 0]))
+        alpha = torch.remainder(alpha + 90.0, 360.0) - 90.0
+        beta = torch.remainder(total - alpha + 90.0, 360.0) - 90.0
+        return torch.stack([alpha, beta], -1)
+
+    def feasible_changes(self, end: torch.Tensor, elbow: torch.Tensor,
+                         bound: float) -> tuple[torch.Tensor, torch.Tensor]:
+        """The joint-angle changes ``(low, high)`` ``[..., 2]`` that stay inside the joint range
+        from this pose, within ``±bound``; unbounded joints: ``(-bound, bound)``."""
+        import torch
+
+        if self.joint_range is None:
+            lo = torch.full((*end.shape[:-1], 2), -bound, dtype=end.dtype, device=end.device)
+            return lo, -lo
+        angles = self.joint_angles(end, elbow)
+        lo_j, hi_j = self.joint_range
+        return (lo_j - angles).clamp(-bound, bound), (hi_j - angles).clamp(-bound, bound)

@@ -5,6 +5,8 @@ arbitrate between the actor and the inverse model (plus OU noise), feed the
 action and the current arm estimate to the forward model, step the plant,
 integrate (observed position with vision, the forward model's prediction
 without), build ``s_{t+1}`` and compute this transition's TD error ``delta``
+on the executable part of the command (:meth:`Agent.executable`, what the
+critic and the forward model learn from)
 (the arbitrator's reliability signal for the next step). It returns a
 :class:`StepInfo`, the per-step record that hooks receive::
 
@@ -104,7 +106,8 @@ def agent_step(agent: Any, arbitrator: Arbitrator, vec_env: VecEnv, state: torch
         action, habit = select_action(agent, arbitrator, state, episode, step, last_delta, active, explore)
     elif habit is None:
         habit = torch.zeros(vec_env.E, dtype=torch.bool, device=device)
-    predicted = agent.predict_arm(state[:, :4], action)
+    executable = agent.executable(action, state)  # what the plant will do: every network sees this action
+    predicted = agent.predict_arm(state[:, :4], executable)
     obs = vec_env.step(action.detach().cpu().double().numpy(), active)
     vision = torch.as_tensor(obs.vision, device=device)
     seen = observed_state(obs, device)
@@ -115,7 +118,7 @@ def agent_step(agent: Any, arbitrator: Arbitrator, vec_env: VecEnv, state: torch
     est_distance = torch.linalg.vector_norm(next_state[:, :2] - next_state[:, 4:], dim=1)
     reward = torch.where(vision, torch.as_tensor(obs.reward, dtype=torch.float32, device=device), -est_distance)
     terminal = torch.where(vision, torch.as_tensor(obs.reached, device=device), est_distance <= radius)
-    delta = agent.td_error(state, action, reward, next_state, terminal.float())
+    delta = agent.td_error(state, executable, reward, next_state, terminal.float())
     return _info(vec_env, obs, episode, step, active, state, action, habit, delta, predicted, reward,
                  next_state, terminal)
 

@@ -55,7 +55,8 @@ from tqdm.auto import tqdm
 from apac_mj import checkpoint
 from apac_mj.agent import Agent
 from apac_mj.arbitrator import Arbitrator
-from apac_mj.config import TrainConfig, to_dict
+from apac_mj.config import TrainConfig, task_spec, to_dict
+from apac_mj.kinematics import Geometry
 from apac_mj.rollout import OnEpisodeStart, OnStep, StepInfo, agent_step, observed_state, select_action
 from apac_mj.suite import load_spec
 from apac_mj.vec_env import VecEnv
@@ -133,9 +134,10 @@ def train(cfg: TrainConfig, out_dir: str | Path, progress: bool = True, on_step:
     if (out_dir / "DONE").is_file():
         return out_dir
     seeds, E, B = list(cfg.seeds), len(cfg.seeds), cfg.agent.babbling_episodes
-    spec = load_spec(cfg.task)
-    env = VecEnv(cfg.task, seeds, cfg.actuation, overrides={"growth_start_episode": spec.growth_start_episode + B})
-    agent = Agent(cfg.agent, seeds, device=cfg.device, precision=cfg.precision)
+    spec = task_spec(cfg)
+    env = VecEnv(cfg.task, seeds, cfg.actuation,
+                 overrides={**cfg.task_overrides, "growth_start_episode": spec.growth_start_episode + B})
+    agent = Agent(cfg.agent, seeds, device=cfg.device, precision=cfg.precision, geometry=Geometry.from_spec(spec))
     arbitrator = Arbitrator(cfg.agent)
     babble_gens = babbling_generators(seeds)
     loop, rows = LoopState.fresh(E, B, agent.device), []
@@ -333,7 +335,7 @@ def _validate(cfg: TrainConfig) -> None:
         raise ValueError(f"babbling_episodes must be >= 0, got {cfg.agent.babbling_episodes}")
     if cfg.device not in ("cpu", "cuda") and not cfg.device.startswith("cuda:"):
         raise ValueError(f"device must be 'cpu' or 'cuda', got {cfg.device!r}")
-    load_spec(cfg.task)  # unknown task -> KeyError listing the known ones
+    task_spec(cfg)  # unknown task -> KeyError listing the known ones; bad override -> TaskSpecError
 
 
 def write_metrics(path: Path, rows: list[dict[str, Any]]) -> None:

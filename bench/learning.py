@@ -28,10 +28,11 @@ import pandas as pd
 import torch
 
 import apac_mj  # noqa: F401  (sets MUJOCO_GL)
+from apac_mj.commands.train import agent_overrides
 from apac_mj.config import AgentConfig, TrainConfig
 from apac_mj.trainer import train
 
-NETS = {"paper": {}, "small": dict(actor_hidden=(64, 64), critic_hidden=(64, 64), forward_hidden=(64, 64),
+NETS = {"paper": {}, "paper_b64": dict(batch_size=64), "small": dict(actor_hidden=(64, 64), critic_hidden=(64, 64), forward_hidden=(64, 64),
                                    inverse_hidden=(64, 64), batch_size=64)}
 AGENTS = ("ddpg", "spac", "apac")
 
@@ -56,6 +57,10 @@ def main() -> None:
     p.add_argument("--actuation", default="kinematic", choices=("servo", "kinematic"))
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--out", default=None, help="keep the runs here (default: a temporary folder)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="AgentConfig field for every run (repeatable), e.g. --set ou_sigma=18")
+    p.add_argument("--task-set", dest="task_overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="TaskSpec field for every run (repeatable), e.g. --task-set at_limit=unbounded")
     args = p.parse_args()
     torch.set_num_threads(args.threads)
     root = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="learning_"))
@@ -65,7 +70,9 @@ def main() -> None:
             for agent in args.agents:
                 cfg = TrainConfig(task=task, seeds=tuple(range(args.seeds)), episodes=args.episodes,
                                   checkpoint_every=max(1, args.episodes // 4), actuation=args.actuation,
-                                  agent=AgentConfig(agent=agent, **NETS[args.nets]))
+                                  task_overrides=dict(kv.split("=", 1) for kv in args.task_overrides),
+                                  agent=AgentConfig(agent=agent, **{**NETS[args.nets],
+                                                                    **agent_overrides(args.overrides)}))
                 t = time.perf_counter()
                 run = train(cfg, root / f"{agent}__{task}", progress=True)
                 print(f"{agent} on {task}: {time.perf_counter() - t:.0f} s")

@@ -33,6 +33,12 @@ def params_of(agent: Agent, k: int) -> list[torch.Tensor]:
     return [p.detach()[k] for n in NETWORKS for p in getattr(agent, n).parameters()]
 
 
+def adam_state(agent: Agent, k: int) -> list[torch.Tensor]:
+    """Member k's Adam moments and step counts (empty before its first update)."""
+    views = [vs[k] for net in agent._views.values() for vs in net]
+    return [t for v in views for t in agent.optimizer.state.get(v, {}).values()]
+
+
 def test_member_of_ensemble_equals_seed_alone():
     seeds, steps = [7, 8, 9, 10], 6
     data = transitions(4, steps)
@@ -61,12 +67,12 @@ def test_inactive_members_untouched():
         agent.replay.add(s, a, r, s2, d, [True] * 3)
         agent.update([True] * 3)
     before = [t.clone() for t in params_of(agent, 1)]
-    moments = [t[1].clone() for ts in agent.optimizer.exp_avg + agent.optimizer.exp_avg_sq for t in ts]
+    moments = [t.clone() for t in adam_state(agent, 1)]
     others = [t.clone() for t in params_of(agent, 0)]
     losses = agent.update(torch.tensor([True, False, True]))
     assert torch.isnan(losses["critic"][1]) and not torch.isnan(losses["critic"][0])
     assert all(torch.equal(b, a) for b, a in zip(before, params_of(agent, 1)))
-    after = [t[1] for ts in agent.optimizer.exp_avg + agent.optimizer.exp_avg_sq for t in ts]
+    after = adam_state(agent, 1)
     assert all(torch.equal(b, a) for b, a in zip(moments, after))
     assert not all(torch.equal(b, a) for b, a in zip(others, params_of(agent, 0)))
 
@@ -77,7 +83,7 @@ def test_member_without_samples_is_skipped():
     agent.replay.add(s, a, r, s2, d, [True, False])
     losses = agent.update([True, True])
     assert not torch.isnan(losses["actor"][0]) and torch.isnan(losses["actor"][1])
-    assert agent.optimizer.steps.tolist() == [1.0, 0.0]
+    assert adam_state(agent, 0) and not adam_state(agent, 1)
 
 
 @pytest.mark.parametrize("normalize", [False, True])
@@ -96,11 +102,10 @@ def test_td_error_matches_hand_computation(normalize):
                 x = torch.relu(x) if i < len(net.layers) - 1 else torch.tanh(x) * 180
             return x
 
-        def q(critic, x, act):
-            h = torch.relu(x @ critic.l1.weight[k] + critic.l1.bias[k, 0])
-            h = torch.cat([h @ critic.l2_state.weight[k] + critic.l2_state.bias[k, 0],
-                           act @ critic.l2_action.weight[k] + critic.l2_action.bias[k, 0]])
-            return (torch.relu(h) @ critic.out.weight[k] + critic.out.bias[k, 0]).squeeze().detach()
+        def q(critic, x, act):  # Table 2's critic: [s, a] -> 400 -> 600 -> 1
+            h = torch.relu(torch.cat([x, act]) @ critic.l1.weight[k] + critic.l1.bias[k, 0])
+            h = torch.relu(h @ critic.l2.weight[k] + critic.l2.bias[k, 0])
+            return (h @ critic.out.weight[k] + critic.out.bias[k, 0]).squeeze().detach()
         x, x2 = pos(s[k]), pos(s2[k])
         bootstrap = q(agent.target_critic, x2, act(mlp(agent.target_actor, x2)))
         expected = r[k] + 0.9 * (1 - done[k]) * bootstrap - q(agent.critic, x, act(a[k]))
@@ -200,69 +205,68 @@ def test_learning_sanity_forward_and_inverse_models():
         s2 = torch.cat([nxt[i], torch.zeros(2)])[None]
         agent.replay.add(s, act[i:i + 1], torch.zeros(1), s2, torch.ones(1), [True])
     first = agent.update([True])
-    for _ in range(150):
+    for _ in range(400):
         last = agent.update([True])
     # the sigmoid forward model at the paper's lr 0.01 learns slowly (docs/agent.md); require progress only
     assert last["forward"][0] < 0.8 * first["forward"][0]
     assert last["inverse"][0] < 0.1 * first["inverse"][0]
 
 
-@pytest.mark.parametrize("normalize", [False, True])
-def test_hand_gradients_match_autograd(normalize):
-    cfg = small_cfg(normalize_inputs=normalize)
-    fused, ref = Agent(cfg, [0, 1, 2]), Agent(cfg, [0, 1, 2])
-    data = transitions(3, 4)
-    for t, (s, a, r, s2, d) in enumerate(data):
-        active = [True, t != 1, True]
-        for ag in (fused, ref):
-            ag.replay.add(s, a, r, s2, d, [True] * 3)
-        lf, lr = fused.update(active), ref._update_autograd(active)
-        for name in LOSSES:
-            k = [i for i in range(3) if active[i]]
-            torch.testing.assert_close(lf[name][k], lr[name][k], rtol=1e-5, atol=1e-5)
-    for k in range(3):
-        for p, q in zip(params_of(fused, k), params_of(ref, k)):
-            torch.testing.assert_close(p, q, rtol=1e-5, atol=1e-6)
-
-
 def test_feasible_range_from_arm_positions():
-    """Joint-angle changes that keep both joints in [0, 180], recovered from the positions alone."""
-    from apac_mj.kinematics import motion_function
+    """Joint-angle changes that keep both joints in [0, 180], recovered from the positions alone, at any origin."""
+    from apac_mj.kinematics import Geometry, motion_function
 
-    agent = Agent(small_cfg(), [0])
-    for alpha, beta, l1, l2 in [(0, 180, 5, 8), (90, 45, 5, 8), (180, 0, 6, 9), (30, 120, 5.5, 8.4)]:
-        end, elbow = motion_function(alpha, beta, l1, l2, (15, 15))
-        s = torch.tensor([[[*end, *elbow, 1.0, 1.0]]], dtype=torch.float32)
-        lo, hi = agent._feasible_range(s)
-        torch.testing.assert_close(lo[0, 0], torch.tensor([-alpha, -beta], dtype=torch.float32), atol=1e-3, rtol=0)
-        torch.testing.assert_close(hi[0, 0], torch.tensor([180 - alpha, 180 - beta], dtype=torch.float32),
-                                   atol=1e-3, rtol=0)
-        cmd = torch.tensor([[[-alpha - 30.0, 180 - beta + 50.0]]]) / 180  # both beyond a limit
-        torch.testing.assert_close(agent._excess(s, cmd)[0, 0], torch.tensor([-30.0, 50.0]) / 180, atol=1e-5,
-                                   rtol=0)
+    for origin in ((15.0, 15.0), (10.0, 12.0)):
+        agent = Agent(small_cfg(), [0], geometry=Geometry(origin=origin))
+        for alpha, beta, l1, l2 in [(0, 180, 5, 8), (90, 45, 5, 8), (180, 0, 6, 9), (30, 120, 5.5, 8.4)]:
+            end, elbow = motion_function(alpha, beta, l1, l2, origin)
+            s = torch.tensor([[*end, *elbow, 1.0, 1.0]], dtype=torch.float32)
+            lo, hi = agent.feasible_range(s)
+            torch.testing.assert_close(lo[0], torch.tensor([-alpha, -beta], dtype=torch.float32), atol=1e-3, rtol=0)
+            torch.testing.assert_close(hi[0], torch.tensor([180 - alpha, 180 - beta], dtype=torch.float32),
+                                       atol=1e-3, rtol=0)
+            cmd = torch.tensor([[-alpha - 30.0, 180 - beta + 50.0]])  # both beyond a limit
+            torch.testing.assert_close(agent.executable(cmd, s), torch.tensor([[-alpha, 180.0 - beta]]), atol=1e-3,
+                                       rtol=0)
+    unbounded = Agent(small_cfg(), [0], geometry=Geometry(joint_range=None))
+    s = torch.tensor([[12.0, 15.0, 20.0, 15.0, 0.0, 0.0]])
+    assert torch.equal(unbounded.executable(torch.tensor([[-170.0, 170.0]]), s), torch.tensor([[-170.0, 170.0]]))
 
 
-def test_feasibility_penalty_gradients_match_autograd_and_pull_commands_back():
-    """A saturated actor commanding beyond the joint limits: hand gradients == autograd, and the
-    penalty (not the paper's; feasibility_weight=0 turns it off) moves the command back."""
-    cfg = small_cfg(feasibility_weight=1000.0, actor_lr=1e-3)
-    fused, ref = Agent(cfg, [0, 1]), Agent(cfg, [0, 1])
+def test_feasible_squash_keeps_proposals_inside_the_joint_range():
+    """action_squash="feasible": whatever the network outputs, pose + proposal stays in [0, 180]."""
+    from apac_mj.kinematics import Geometry
+
+    agent = Agent(small_cfg(action_squash="feasible"), [0, 1])
+    with torch.no_grad():
+        agent.actor.layers[-1].weight.mul_(1000)  # saturated outputs
+        agent.inverse_model.layers[-1].bias.fill_(5.0)
+    g = torch.Generator().manual_seed(0)
+    for _ in range(20):
+        from apac_mj.kinematics import motion_function
+        ang = torch.rand(2, 2, generator=g) * 180
+        end, elbow = motion_function(ang[:, 0].numpy(), ang[:, 1].numpy(), 5.0, 8.0)
+        s = torch.cat([torch.as_tensor(end), torch.as_tensor(elbow), torch.rand(2, 2) * 30], 1).float()
+        for a in (agent.actor_action(s), agent.inverse_action(s)):
+            after = Geometry().joint_angles(s[:, :2], s[:, 2:4]) + a
+            assert ((after >= -1e-3) & (after <= 180 + 1e-3)).all()
+            torch.testing.assert_close(agent.executable(a, s), a)
+
+
+def test_feasibility_penalty_pulls_commands_back():
+    """A saturated actor commanding beyond the joint limits: the penalty (not the paper's;
+    feasibility_weight=0 turns it off) moves the command back towards the feasible range."""
+    agent = Agent(small_cfg(feasibility_weight=1000.0, actor_lr=1e-3), [0, 1])
     start = torch.tensor([12.0, 15.0, 20.0, 15.0, 9.0, 14.0])  # shoulder 0, elbow 180: only (+, -) moves are possible
-    for ag in (fused, ref):
-        with torch.no_grad():
-            ag.actor.layers[-1].bias.copy_(torch.tensor([[-3.0, 3.0]]).expand(2, 1, 2))  # tanh ~ (-1, +1): (-180, +180) degrees
-    before = fused.actor_action(start.expand(2, 6).clone())
+    with torch.no_grad():
+        agent.actor.layers[-1].bias.copy_(torch.tensor([[-3.0, 3.0]]).expand(2, 1, 2))  # (-180, +180) degrees
+    before = agent.actor_action(start.expand(2, 6).clone())
     for t in range(5):
         s = start.expand(2, 6).clone()
-        for ag in (fused, ref):
-            ag.replay.add(s, torch.zeros(2, 2), -torch.ones(2), s, torch.zeros(2), [True, True])
-        lf, lr = fused.update([True, True]), ref._update_autograd([True, True])
-        torch.testing.assert_close(lf["actor"], lr["actor"], rtol=1e-5, atol=1e-4)
-        assert (lf["actor"] > 100).all()  # the penalty dominates while the command is far out of range
-    for k in range(2):
-        for p, q in zip(params_of(fused, k), params_of(ref, k)):
-            torch.testing.assert_close(p, q, rtol=1e-5, atol=1e-6)
-    after = fused.actor_action(start.expand(2, 6).clone())
+        agent.replay.add(s, torch.zeros(2, 2), -torch.ones(2), s, torch.zeros(2), [True, True])
+        losses = agent.update([True, True])
+        assert (losses["actor"] > 100).all()  # the penalty dominates while the command is far out of range
+    after = agent.actor_action(start.expand(2, 6).clone())
     assert (after[:, 0] > before[:, 0]).all() and (after[:, 1] < before[:, 1]).all()
 
 
@@ -282,32 +286,25 @@ def test_replay_keeps_commanded_and_executed_actions_apart():
 
 
 @pytest.mark.parametrize("normalize", [False, True])
-def test_habit_distillation_gradients_match_autograd_and_pull_actor_to_planner(normalize):
-    """habit_distillation_weight > 0: hand gradients == autograd, and pi(s) moves towards f_I(s)
-    (the critic's output layer is zeroed and frozen so that only the distillation moves the actor)."""
+def test_habit_distillation_pulls_actor_to_planner(normalize):
+    """habit_distillation_weight > 0: pi(s) moves towards f_I(s) (the critic is zeroed and all but frozen,
+    so only the distillation moves the actor; its gradient is checked in tests/test_update.py)."""
     kw = dict(normalize_inputs=normalize, actor_lr=1e-2, inverse_lr=1e-6, critic_lr=1e-9, feasibility_weight=0.0,
               weight_decay=0.0)
-    fused, ref = Agent(small_cfg(habit_distillation_weight=50.0, **kw), [0, 1]), \
-        Agent(small_cfg(habit_distillation_weight=50.0, **kw), [0, 1])
-    off = Agent(small_cfg(**kw), [0, 1])
-    for ag in (fused, ref, off):
+    on, off = Agent(small_cfg(habit_distillation_weight=50.0, **kw), [0, 1]), Agent(small_cfg(**kw), [0, 1])
+    for ag in (on, off):
         with torch.no_grad():
             for p in ag.critic.parameters():
                 p.zero_()
             ag.actor.layers[-1].bias.fill_(0.5)  # the habit starts ~80 degrees off the planner
     data = transitions(2, 30, seed=3)
     probe = data[0][0]
-    gap0 = (fused.actor_action(probe) - fused.inverse_action(probe)).abs().mean()
+    gap0 = (on.actor_action(probe) - on.inverse_action(probe)).abs().mean()
     for s, a, r, s2, d in data:
-        for ag in (fused, ref, off):
+        for ag in (on, off):
             ag.replay.add(s, a, r, s2, d, [True, True])
-        lf, lr = fused.update([True, True]), ref._update_autograd([True, True])
-        off.update([True, True])
-        torch.testing.assert_close(lf["actor"], lr["actor"], rtol=1e-5, atol=1e-4)
-    for k in range(2):
-        for p, q in zip(params_of(fused, k), params_of(ref, k)):
-            torch.testing.assert_close(p, q, rtol=1e-4, atol=2e-5)  # 30 Adam steps at lr 1e-2
-    gap_on = (fused.actor_action(probe) - fused.inverse_action(probe)).abs().mean()
+            ag.update([True, True])
+    gap_on = (on.actor_action(probe) - on.inverse_action(probe)).abs().mean()
     gap_off = (off.actor_action(probe) - off.inverse_action(probe)).abs().mean()
     assert gap_on < 0.5 * gap0 and gap_on < 0.5 * gap_off
 

@@ -7,14 +7,13 @@ import numpy as np
 import pytest
 import torch
 
-from apac_mj.agent import member_generators
+from apac_mj.agent import _member_adam, member_generators
 from apac_mj.arbitrator import Arbitrator
 from apac_mj.buffer import EnsembleReplay
 from apac_mj.config import AgentConfig
 from apac_mj.integrator import integrate
 from apac_mj.networks import EnsembleLinear, build_actor, build_critic
 from apac_mj.noise import OUNoise
-from apac_mj.optim import EnsembleAdam
 
 
 def gens(seeds, which=0):
@@ -39,52 +38,60 @@ def test_init_bounds_ddpg():
 def test_networks_member_outputs_match_single():
     x, a = torch.randn(4, 7, 6), torch.randn(4, 7, 2)
     g4 = gens(range(4))
-    actor, critic = build_actor((16, 12), 180.0, g4), build_critic((16, 12), g4)
+    actor, critic = build_actor((16, 12), g4), build_critic((16, 12), g4)
     for k in range(4):
         g = gens([k])
-        one_actor, one_critic = build_actor((16, 12), 180.0, g), build_critic((16, 12), g)
+        one_actor, one_critic = build_actor((16, 12), g), build_critic((16, 12), g)
         torch.testing.assert_close(actor(x)[k], one_actor(x[k:k + 1])[0], rtol=0, atol=1e-5)
         torch.testing.assert_close(critic(x, a)[k], one_critic(x[k:k + 1], a[k:k + 1])[0], rtol=0, atol=1e-6)
     out = actor(x * 100)
-    assert out.shape == (4, 7, 2) and out.abs().max() <= 180.0
+    assert out.shape == (4, 7, 2) and out.abs().max() <= 1.0
 
 
 def test_bad_sizes_raise():
     with pytest.raises(ValueError, match="layer sizes"):
         EnsembleLinear(0, 3, gens([0]))
     with pytest.raises(ValueError, match="even"):
-        build_critic((4, 5), gens([0]))
+        build_critic((4, 5), gens([0]), form="separable")
+    with pytest.raises(ValueError, match="critic form"):
+        build_critic((4, 4), gens([0]), form="additive")
 
 
-def _adam_pair(wd=1e-3):
+def _member_opt(E=3, wd=1e-3):
     torch.manual_seed(0)
-    p0 = torch.randn(1, 5, 3)
-    mine = p0.clone().requires_grad_()
-    ref = p0[0].clone().requires_grad_()
-    return mine, ref, EnsembleAdam([([mine], 0.01)], weight_decay=wd), torch.optim.Adam([ref], lr=0.01, weight_decay=wd)
+    net = torch.nn.Module()
+    net.p = torch.nn.Parameter(torch.randn(E, 5, 3))
+    opt, views = _member_adam({"net": (net, 0.01)}, E, wd)
+    return net.p, opt, views["net"][0]
 
 
-def test_ensemble_adam_matches_torch_adam():
-    mine, ref, opt, ref_opt = _adam_pair()
+def test_member_adam_matches_torch_adam_per_member():
+    p, opt, views = _member_opt(E=1)
+    ref = p.detach()[0].clone().requires_grad_()
+    ref_opt = torch.optim.Adam([ref], lr=0.01, weight_decay=1e-3)
     for i in range(5):
         g = torch.randn(5, 3) * (i + 1)
-        opt.step([[g[None]]], [0])
+        views[0].grad = g.clone()
+        opt.step()
         ref.grad = g.clone()
         ref_opt.step()
-        torch.testing.assert_close(mine.detach()[0], ref.detach(), rtol=1e-6, atol=1e-7)
+        torch.testing.assert_close(p.detach()[0], ref.detach(), rtol=1e-6, atol=1e-7)
 
 
-def test_ensemble_adam_inactive_members_untouched():
-    p = torch.randn(3, 4, 2, requires_grad=True)
-    opt = EnsembleAdam([([p], 1e-2)], weight_decay=1e-3)
-    opt.step([[torch.randn(3, 4, 2)]], [0, 1, 2])
-    before = [t.detach().clone() for t in (p, opt.exp_avg[0][0], opt.exp_avg_sq[0][0], opt.steps)]
-    opt.step([[torch.randn(3, 4, 2)]], [0, 2])
-    after = [p.detach(), opt.exp_avg[0][0], opt.exp_avg_sq[0][0], opt.steps]
-    for b, a in zip(before, after):
-        assert torch.equal(b[1], a[1])
-        assert not torch.equal(b[0], a[0])
-    assert opt.steps.tolist() == [2.0, 1.0, 2.0]
+def test_member_adam_inactive_members_untouched():
+    """A member whose view has no gradient keeps its weights, moments and step count."""
+    p, opt, views = _member_opt()
+    for v in views:
+        v.grad = torch.randn(4 + 1, 3)
+    opt.step()
+    before = (p.detach()[1].clone(), {k: t.clone() for k, t in opt.state[views[1]].items()})
+    others = p.detach()[0].clone()
+    views[0].grad, views[1].grad, views[2].grad = torch.randn(5, 3), None, torch.randn(5, 3)
+    opt.step()
+    assert torch.equal(p.detach()[1], before[0])
+    assert all(torch.equal(opt.state[views[1]][k], t) for k, t in before[1].items())
+    assert not torch.equal(p.detach()[0], others)
+    assert [float(opt.state[v]["step"]) for v in views] == [2.0, 1.0, 2.0]
 
 
 def test_ou_statistics_and_reset():

@@ -93,12 +93,13 @@ def _load_agent(args: argparse.Namespace) -> tuple[Any, Any, int, dict[str, Any]
     checkpoint or fresh."""
     from apac_mj import checkpoint
     from apac_mj.agent import Agent
-    from apac_mj.config import AgentConfig, TrainConfig, train_config_from_dict
+    from apac_mj.config import AgentConfig, TrainConfig, task_spec, train_config_from_dict
+    from apac_mj.kinematics import Geometry
 
     if args.run is None:
         cfg = TrainConfig(task=args.task or "changing_target", seeds=(args.seed,),
                           agent=AgentConfig(agent=args.agent or "apac"))
-        agent = Agent(cfg.agent, cfg.seeds)
+        agent = Agent(cfg.agent, cfg.seeds, geometry=Geometry.from_spec(task_spec(cfg)))
         first = cfg.agent.planning_episodes if args.as_episode is None else args.as_episode
         return cfg, agent, first, None
     ckpt = checkpoint.load(args.run / "checkpoints" / "latest.pt", required=("config", "agent", "loop", "env"))
@@ -107,7 +108,7 @@ def _load_agent(args: argparse.Namespace) -> tuple[Any, Any, int, dict[str, Any]
     cfg = train_config_from_dict(run_cfg)
     if args.member >= len(cfg.seeds):
         raise ValueError(f"--member {args.member} out of range: the run has {len(cfg.seeds)} seeds {list(cfg.seeds)}")
-    agent = Agent(cfg.agent, cfg.seeds)
+    agent = Agent(cfg.agent, cfg.seeds, geometry=Geometry.from_spec(task_spec(cfg)))
     agent.load_state_dict(ckpt["agent"])
     if args.agent is not None:
         cfg.agent.agent = args.agent
@@ -129,11 +130,13 @@ def _vec_env(cfg: Any, args: argparse.Namespace, env_state: dict[str, Any] | Non
     from apac_mj.vec_env import VecEnv
 
     if env_state is None:
-        return VecEnv(cfg.task, [args.seed + k for k in range(len(cfg.seeds))], actuation=cfg.actuation)
+        return VecEnv(cfg.task, [args.seed + k for k in range(len(cfg.seeds))], actuation=cfg.actuation,
+                      overrides=dict(cfg.task_overrides))
     # Built as the trainer builds it (growth starts after babbling + growth_start_episode episodes), then
     # restored: the run's link lengths, static targets and the next targets of its sequence.
     growth = load_spec(cfg.task).growth_start_episode + cfg.agent.babbling_episodes
-    vec_env = VecEnv(cfg.task, list(cfg.seeds), cfg.actuation, overrides={"growth_start_episode": growth})
+    vec_env = VecEnv(cfg.task, list(cfg.seeds), cfg.actuation,
+                     overrides={**cfg.task_overrides, "growth_start_episode": growth})
     vec_env.set_state(env_state)
     return vec_env
 

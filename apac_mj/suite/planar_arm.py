@@ -64,6 +64,7 @@ class _Ids:
         self.upper_geom = idx(geom, "upper_arm")
         self.fore_geom = idx(geom, "forearm")
         joints = [idx(joint, "shoulder"), idx(joint, "elbow")]
+        self.joints = np.array(joints)
         self.qpos = np.array([model.jnt_qposadr[j] for j in joints])
         self.qvel = np.array([model.jnt_dofadr[j] for j in joints])
         self.ctrl = np.array([idx(act, "shoulder_servo"), idx(act, "elbow_servo")])
@@ -134,6 +135,10 @@ class Physics(engine.Physics):
         self._d.qvel[ids.qvel] = 0.0
         self._d.ctrl[ids.ctrl] = q
         mujoco.mj_forward(self._m, self._d)  # positions only: no step, so no instability to check
+
+    def set_joint_limits(self, limited: bool) -> None:
+        """Turn MuJoCo's joint-limit constraint of both hinges on (the MJCF's [0, 180]) or off."""
+        self._m.jnt_limited[self.ids.joints] = 1 if limited else 0
 
     def set_servo_setpoint(self, angles_deg) -> None:
         """Command the position servos to these (shoulder, elbow) angles in degrees."""
@@ -249,6 +254,7 @@ class Reach(base.Task):
         if self.spec.kinematics_mode == "static":
             self._lengths = np.array(self.spec.link_lengths, dtype=np.float64)
         physics.set_link_lengths(*self._lengths)
+        physics.set_joint_limits(self.spec.at_limit == "clip")
         physics.set_joint_angles(*START_ANGLES)
         physics.set_target(self._episode_target())
         physics.forward()
@@ -290,9 +296,11 @@ class Reach(base.Task):
         if self.growing:
             self._lengths = self._lengths + self.spec.growth_per_step
             physics.set_link_lengths(*self._lengths)
-        lo, hi = JOINT_RANGE
         change = np.minimum(np.maximum(action, -ACTION_BOUND), ACTION_BOUND)
-        setpoint = np.minimum(np.maximum(physics.joint_angles() + change, lo), hi)
+        setpoint = physics.joint_angles() + change
+        if self.spec.at_limit == "clip":
+            lo, hi = JOINT_RANGE
+            setpoint = np.minimum(np.maximum(setpoint, lo), hi)
         if self.actuation == "kinematic":
             physics.write_joint_angles(setpoint)
         else:

@@ -61,6 +61,10 @@ class TaskSpec:
     growth_start_episode: int = 100
     #: "perfect" or "occluded" (target and arm seen at the first step only).
     vision: str = "perfect"
+    #: What the plant does with a command past a joint limit (both joints move in [0, 180] degrees):
+    #: "clip" (the paper: "each joint only moves between 0 to 180 degrees"; the part past the limit
+    #: is lost) or "unbounded" (no limit: the angles go on, as the motion function itself allows).
+    at_limit: str = "clip"
     #: Action steps per episode before the time limit.
     steps_per_episode: int = 30
     #: Size (width, height) of the plane in cm; the plane spans [0, w] x [0, h].
@@ -75,6 +79,7 @@ class TaskSpec:
         _check_choice(self, "target_region", ("all", "train", "test"))
         _check_choice(self, "kinematics_mode", ("static", "changing"))
         _check_choice(self, "vision", ("perfect", "occluded"))
+        _check_choice(self, "at_limit", ("clip", "unbounded"))
         _check_positive(self, "zone_radius", self.zone_radius)
         for k, v in zip(("l1", "l2"), self.link_lengths):
             _check_positive(self, f"link_lengths ({k})", v)
@@ -123,6 +128,7 @@ _LAYOUT: dict[str, dict[str, str]] = {
         "growth_start_episode": "growth_start_episode",
     },
     "vision": {"mode": "vision"},
+    "joints": {"at_limit": "at_limit"},
     "episode": {"steps": "steps_per_episode"},
     "plane": {"size": "plane_size", "origin": "origin"},
     "region": {"test_y_min": "region"},
