@@ -225,3 +225,15 @@ def test_evaluate_and_record_on_a_grid_directory_list_its_cells(tmp_path: Path, 
     err = capsys.readouterr().err
     assert "is a grid's results directory, not a run directory" in err
     assert all(str(tmp_path / c.name) in err for c in grid.cells(p)[:2])
+
+
+def test_demo_duration_is_stated_once() -> None:
+    """README, `apac-mj demo --help` and demo.toml give the same duration."""
+    import re
+
+    from apac_mj.commands import demo
+
+    texts = {"README": (ROOT / "README.md").read_text().split("## Quick tour")[0], "demo --help": demo.DESCRIPTION,
+             "demo.toml": (ROOT / "tasks" / "presets" / "demo.toml").read_text()}
+    found = {k: set(re.findall(r"about (\d+) minutes", t.replace("\n", " "), flags=re.I)) for k, t in texts.items()}
+    assert all(len(v) == 1 for v in found.values()) and len(set.union(*found.values())) == 1, found
