@@ -16,6 +16,7 @@ def test_every_task_is_registered():
     assert apac_gym.register_all() == apac_gym.ENV_IDS  # idempotent
 
 
+@pytest.mark.filterwarnings("ignore:.*(Box observation space|symmetric and normalized):UserWarning")
 @pytest.mark.parametrize("task", [t for _, t in suite.ALL_TASKS])
 def test_check_env(task):
     from gymnasium.utils.env_checker import check_env
