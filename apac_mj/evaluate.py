@@ -63,6 +63,9 @@ def load_run(run_dir: Path, device: str | None = None) -> tuple[TrainConfig, Age
     cfg = train_config_from_dict(d)
     if device is not None:
         cfg.device = device
+    from apac_mj.trainer import check_device
+
+    check_device(cfg.device)  # a missing GPU: a clear error before anything is loaded
     ckpt = checkpoint.load_run_checkpoint(run_dir, required=("agent", "env"), warn=warn_user)
     agent = Agent(cfg.agent, list(cfg.seeds), device=cfg.device, precision=cfg.precision)
     agent.load_state_dict(ckpt["agent"])

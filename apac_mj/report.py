@@ -443,7 +443,8 @@ def fig_losses(metrics: pd.DataFrame, path: Path) -> Path:
 def _style(ax: plt.Axes, title: str, xlabel: str, ylabel: str, ylim: tuple[float, float] | None = None) -> None:
     """Title (wrapped to the panel's width), labels, grid and legend of one panel."""
     width_in = ax.get_position().width * ax.figure.get_size_inches()[0]
-    ax.set_title(textwrap.fill(title, width=max(20, int(width_in * 12))), fontsize=10)
+    width = max(20, int(width_in * 12))
+    ax.set_title("\n".join(textwrap.fill(line, width=width) for line in title.split("\n")), fontsize=10)
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     if ylim:
