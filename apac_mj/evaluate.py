@@ -39,7 +39,6 @@ from apac_mj.arbitrator import Arbitrator
 from apac_mj.config import TrainConfig, task_spec, train_config_from_dict
 from apac_mj.kinematics import Geometry, angle_grid, motion_function
 from apac_mj.rollout import OnEpisodeStart, OnStep, agent_step, observed_state, select_action
-from apac_mj.suite import load_spec
 from apac_mj.suite.task_spec import TaskSpec
 from apac_mj.vec_env import VecEnv
 
@@ -57,17 +56,40 @@ def load_run(run_dir: Path, device: str | None = None) -> tuple[TrainConfig, Age
     run_dir = Path(run_dir)
     path = run_dir / "config.json"
     if not path.is_file():
-        raise FileNotFoundError(f"{run_dir} is not a run directory (no config.json); train one with apac-mj train")
+        raise FileNotFoundError(not_a_run_dir(run_dir, "evaluate"))
     d = json.loads(path.read_text())
     d.pop("git_commit", None)
     cfg = train_config_from_dict(d)
     if device is not None:
         cfg.device = device
-    ckpt = checkpoint.load(run_dir / "checkpoints" / "latest.pt", required=("agent", "env"))
+    from apac_mj.trainer import check_device
+
+    check_device(cfg.device)  # a missing GPU: a clear error before anything is loaded
+    ckpt = checkpoint.load_run_checkpoint(run_dir, required=("agent", "env"), warn=warn_user)
     agent = Agent(cfg.agent, list(cfg.seeds), device=cfg.device, precision=cfg.precision,
                   geometry=Geometry.from_spec(task_spec(cfg)))
     agent.load_state_dict(ckpt["agent"])
     return cfg, agent, ckpt
+
+
+def not_a_run_dir(path: Path, command: str) -> str:
+    """Why ``path`` is not a run directory; for a grid's results directory, its cells to choose from."""
+    from apac_mj.grid import CELL_FILE
+
+    path = Path(path)
+    if not path.is_dir():
+        return f"{path} does not exist"
+    cells = sorted(p.parent.name for p in path.glob(f"*/{CELL_FILE}") if (p.parent / "config.json").is_file())
+    if cells:
+        return (f"{path} is a grid's results directory, not a run directory; {command} one of its cells: "
+                + ", ".join(str(path / c) for c in cells))
+    return f"{path} is not a run directory (no config.json); train one with apac-mj train"
+
+
+def warn_user(message: str) -> None:
+    import sys
+
+    print(message, file=sys.stderr, flush=True)
 
 
 def evaluate(run_dir: str | Path, protocols: Sequence[str] = ("grid", "occluded"), region: str | None = None,

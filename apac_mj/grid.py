@@ -291,27 +291,70 @@ def cells(preset: Preset) -> list[Cell]:
 
 
 def cell_done(cell_dir: Path) -> bool:
-    """Finished: training DONE and, if it has tests, the evaluation summary written."""
+    """Finished: training DONE for the cell's episode count and, if it has tests, the evaluation summary written."""
     info = read_json(cell_dir / CELL_FILE)
     if info is None or not (cell_dir / "DONE").exists():
         return False
+    run = read_json(cell_dir / "config.json")
+    if run is None or run.get("episodes") != info["train_config"]["episodes"]:
+        return False  # being extended to more episodes
     return not info["protocols"] or (cell_dir / "eval" / "summary.json").exists()
 
 
-def prepare_cell(cell: Cell, preset: Preset, results: Path) -> Path:
-    """Create the cell's directory with cell.json; refuse one made by a different configuration."""
-    cell_dir = results / cell.name
+def _cell_info(cell: Cell, preset: Preset) -> dict[str, Any]:
     cfg = to_dict(cell.train_config(preset))
-    info = {"agent": cell.agent, "condition": cell.condition, "region": cell.region,
+    return {"agent": cell.agent, "condition": cell.condition, "region": cell.region,
             "protocols": list(cell.protocols), "test_limit": preset.tests.limit, "train_config": _jsonable(cfg)}
-    old = read_json(cell_dir / CELL_FILE)
-    if old is not None and old != info:
-        raise ValueError(f"{cell_dir} holds results of a different configuration "
-                         f"({_first_difference(old, info)}); use another --out or delete that directory")
-    cell_dir.mkdir(parents=True, exist_ok=True)
+
+
+def cell_status(cell: Cell, preset: Preset, results: Path) -> tuple[str, str]:
+    """What running ``cell`` into ``results`` would do, writing nothing: ("done" | "to run" | "to resume" |
+    "to extend" | "refused", why). A cell that differs only by more episodes is extended."""
+    cell_dir = Path(results) / cell.name
+    info, old = _cell_info(cell, preset), read_json(cell_dir / CELL_FILE)
     if old is None:
-        atomic_write_text(cell_dir / CELL_FILE, json.dumps(info, indent=2))
+        return "to run", ""
+    was, now = old["train_config"]["episodes"], info["train_config"]["episodes"]
+    same_but_episodes = _strip_episodes(old) == _strip_episodes(info)
+    if old != info and not (same_but_episodes and now > was):
+        why = (f"its run has {was} episodes, more than the {now} asked for" if same_but_episodes
+               else _first_difference(old, info))
+        return "refused", (f"{cell_dir} holds results of a different configuration ({why}); use another --out "
+                           "or delete that directory")
+    if now > was:
+        return "to extend", f"from {was} to {now} episodes"
+    if cell_done(cell_dir):
+        return "done", ""
+    return ("to resume", "") if (cell_dir / "config.json").is_file() else ("to run", "")
+
+
+def _strip_episodes(info: dict[str, Any]) -> dict[str, Any]:
+    return {**info, "train_config": {**info["train_config"], "episodes": None}}
+
+
+def prepare_cell(cell: Cell, preset: Preset, results: Path) -> Path:
+    """Create the cell's directory with cell.json (rewritten when extended); refuse one made by a different
+    configuration."""
+    cell_dir = results / cell.name
+    status, why = cell_status(cell, preset, results)
+    if status == "refused":
+        raise ValueError(why)
+    cell_dir.mkdir(parents=True, exist_ok=True)
+    if status in ("to run", "to extend") and read_json(cell_dir / CELL_FILE) != _cell_info(cell, preset):
+        atomic_write_text(cell_dir / CELL_FILE, json.dumps(_cell_info(cell, preset), indent=2))
     return cell_dir
+
+
+def check_grid(preset: Preset, results: Path) -> dict[str, tuple[str, str]]:
+    """Every cell's status; raises ValueError naming every refused cell (nothing is written)."""
+    from apac_mj.trainer import check_device
+
+    check_device(preset.device)
+    statuses = {c.name: cell_status(c, preset, Path(results)) for c in cells(preset)}
+    refused = [why for status, why in statuses.values() if status == "refused"]
+    if refused:
+        raise ValueError(f"{len(refused)} of {len(statuses)} cells refused, nothing run: " + "; ".join(refused))
+    return statuses
 
 
 def _first_difference(old: dict, new: dict, prefix: str = "") -> str:
@@ -357,6 +400,7 @@ def run_grid(preset: Preset, results: str | Path, executor: Any = None, progress
     from apac_mj.executors import LocalExecutor
 
     results = Path(results)
+    check_grid(preset, results)  # before anything is created
     results.mkdir(parents=True, exist_ok=True)
     executor = executor or LocalExecutor()
     grid_cells = cells(preset)

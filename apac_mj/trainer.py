@@ -31,11 +31,15 @@ batched loop until every member finished ``cfg.episodes`` training episodes.
   episodes: the environment's threshold is shifted by the babbling count.
 
 Checkpoints (every ``cfg.checkpoint_every`` training episodes of the slowest
-member, and at the end) hold the agent (networks, optimizer, replay, noise,
+member, and at the end; ``checkpoints/latest.pt`` and the one before it,
+``previous.pt``, which a damaged ``latest.pt`` falls back to) hold the agent (networks, optimizer, replay, noise,
 generators), the environments (:meth:`VecEnv.get_state`), the loop's per-member
 counters and the babbling generators, so a resumed run's numbers equal an
 uninterrupted run's. ``metrics.parquet`` is rewritten (atomically) just before
-each checkpoint; on resume it is cut back to the checkpoint's row count.
+each checkpoint; on resume it is cut back to the checkpoint's row count. A
+finished run resumed with a larger ``episodes`` (and otherwise the same
+config) continues from its final checkpoint exactly as an uninterrupted run of
+that length would have.
 """
 from __future__ import annotations
 
@@ -44,6 +48,7 @@ import dataclasses
 import io
 import json
 import subprocess
+import sys
 from pathlib import Path
 from typing import Any, Callable
 
@@ -58,11 +63,8 @@ from apac_mj.arbitrator import Arbitrator
 from apac_mj.config import TrainConfig, task_spec, to_dict
 from apac_mj.kinematics import Geometry
 from apac_mj.rollout import OnEpisodeStart, OnStep, StepInfo, agent_step, observed_state, select_action
-from apac_mj.suite import load_spec
 from apac_mj.vec_env import VecEnv
 
-#: Checkpoints kept in RUN_DIR/checkpoints besides latest.pt.
-KEEP_CHECKPOINTS = 3
 #: Episodes (all seeds) in the progress bar's running success rate and habit share.
 PROGRESS_WINDOW = 20
 METRIC_COLUMNS = ("seed", "episode", "phase", "success", "steps", "return", "final_distance", "habit_actions",
@@ -128,10 +130,18 @@ class LoopState:
 # -- the loop ----------------------------------------------------------------------------------
 def train(cfg: TrainConfig, out_dir: str | Path, progress: bool = True, on_step: OnStep | None = None,
           on_episode_start: OnEpisodeStart | None = None, record_every: int | None = None) -> Path:
-    """Train ``cfg.seeds`` side by side on ``cfg.task``; write/resume ``out_dir``; return it."""
+    """Train ``cfg.seeds`` side by side on ``cfg.task``; write/resume/extend ``out_dir``; return it.
+
+    Everything is validated before anything is written: a refused or failed start leaves no files.
+    Resuming, extending a finished run (same config, more episodes) and finding a run already
+    finished are said on stderr, as is a fallback to an older checkpoint.
+    """
     out_dir = Path(out_dir)
-    config = _prepare_run_dir(cfg, out_dir)
-    if (out_dir / "DONE").is_file():
+    _check_record_every(record_every)
+    config, run_episodes = _prepare_run_dir(cfg, out_dir)
+    if run_episodes == cfg.episodes and _finished(out_dir):
+        say(f"{out_dir} already finished {cfg.episodes} episodes; nothing to train "
+            f"(a larger --episodes extends it)")
         return out_dir
     seeds, E, B = list(cfg.seeds), len(cfg.seeds), cfg.agent.babbling_episodes
     spec = task_spec(cfg)
@@ -140,10 +150,12 @@ def train(cfg: TrainConfig, out_dir: str | Path, progress: bool = True, on_step:
     agent = Agent(cfg.agent, seeds, device=cfg.device, precision=cfg.precision, geometry=Geometry.from_spec(spec))
     arbitrator = Arbitrator(cfg.agent)
     babble_gens = babbling_generators(seeds)
-    loop, rows = LoopState.fresh(E, B, agent.device), []
-    latest = out_dir / "checkpoints" / "latest.pt"
-    if latest.is_file():
-        loop, rows = _restore(latest, config, agent, env, babble_gens)
+    loop, rows, saved_at = LoopState.fresh(E, B, agent.device), [], None
+    if checkpoint.run_checkpoints(out_dir / "checkpoints"):
+        loop, rows = _restore(out_dir, config, agent, env, babble_gens)
+        saved_at = loop.slowest()
+        _say_resume(out_dir, loop, run_episodes, cfg.episodes)
+    _write_config(out_dir, config, run_episodes)
     recorder = _recorder(out_dir, record_every, config)
     on_step, on_episode_start = _chain_hooks(recorder, on_step, on_episode_start)
     bar = tqdm(total=cfg.episodes, initial=min(loop.slowest(), cfg.episodes), disable=not progress,
@@ -164,13 +176,46 @@ def train(cfg: TrainConfig, out_dir: str | Path, progress: bool = True, on_step:
             if loop.slowest() // cfg.checkpoint_every > loop.checkpoints_done:
                 loop.checkpoints_done = loop.slowest() // cfg.checkpoint_every
                 _save(out_dir, config, loop, agent, env, babble_gens, rows)
-        _save(out_dir, config, loop, agent, env, babble_gens, rows)
+                saved_at = loop.slowest()
+        if saved_at != loop.slowest():  # not saved just now by the periodic checkpoint
+            _save(out_dir, config, loop, agent, env, babble_gens, rows)
         checkpoint.atomic_write_bytes(out_dir / "DONE", lambda f: f.write(b"done\n"))
+    except KeyboardInterrupt:
+        bar.close()
+        _say_interrupted(out_dir, saved_at, cfg)
+        raise
     finally:
         bar.close()
         if recorder is not None:
             recorder.close()
     return out_dir
+
+
+def say(message: str) -> None:
+    """A message to the user about the run directory (stderr, so stdout stays machine-readable)."""
+    print(message, file=sys.stderr, flush=True)
+
+
+def _say_resume(out_dir: Path, loop: LoopState, run_episodes: int | None, episodes: int) -> None:
+    done = loop.slowest()
+    if run_episodes is not None and run_episodes < episodes:
+        say(f"extending {out_dir} from {run_episodes} to {episodes} episodes: resuming at episode {done}")
+    else:
+        say(f"resuming {out_dir} from its checkpoint: {done} of {episodes} episodes done (slowest seed)")
+
+
+def _say_interrupted(out_dir: Path, saved_at: int | None, cfg: TrainConfig) -> None:
+    if saved_at is None:
+        say(f"interrupted: nothing saved yet in {out_dir} (the first checkpoint comes after "
+            f"{cfg.checkpoint_every} episodes); the same command starts the run over")
+    else:
+        say(f"interrupted: {out_dir}/checkpoints/latest.pt holds the run after {saved_at} of {cfg.episodes} "
+            f"episodes (the episodes since then are lost); run the same command again to resume from there")
+
+
+def _check_record_every(record_every: int | None) -> None:
+    if record_every is not None and record_every < 1:
+        raise ValueError(f"record_every must be >= 1, got {record_every}")
 
 
 def _start_episodes(loop: LoopState, active: np.ndarray, env: VecEnv, agent: Agent,
@@ -292,23 +337,52 @@ def config_dict(cfg: TrainConfig) -> dict[str, Any]:
     return json.loads(json.dumps(to_dict(cfg)))
 
 
-def _prepare_run_dir(cfg: TrainConfig, out_dir: Path) -> dict[str, Any]:
-    """Validate ``cfg``; write config.json, or check it matches the one already there."""
+def _prepare_run_dir(cfg: TrainConfig, out_dir: Path) -> tuple[dict[str, Any], int | None]:
+    """Validate ``cfg`` against itself and the run already in ``out_dir``; write nothing.
+
+    Returns the config and the episode count of the run already there (None: a new run). The same
+    config with more episodes extends a run; any other difference is refused.
+    """
     _validate(cfg)
     config = config_dict(cfg)
     path = out_dir / "config.json"
-    if path.is_file():
-        old = json.loads(path.read_text())
-        old.pop("git_commit", None)
-        diff = _diff(old, config)
-        if diff:
-            raise ValueError(f"{out_dir} holds a run with a different config ({'; '.join(diff)}); "
-                             "use another --out or the same settings to resume")
-        return config
+    if not path.is_file():
+        return config, None
+    old = json.loads(path.read_text())
+    old.pop("git_commit", None)
+    diff = _diff({**old, "episodes": None}, {**config, "episodes": None})
+    if diff:
+        raise ValueError(f"{out_dir} holds a run with a different config ({'; '.join(diff)}); "
+                         "use another --out, or the same settings to resume (only the episode count may grow)")
+    if cfg.episodes < old["episodes"]:
+        raise ValueError(f"{out_dir} holds a run of {old['episodes']} episodes; it cannot be shortened to "
+                         f"{cfg.episodes} (use another --out, or --episodes >= {old['episodes']})")
+    return config, int(old["episodes"])
+
+
+def _write_config(out_dir: Path, config: dict[str, Any], run_episodes: int | None) -> None:
+    """Write config.json for a new run, or the new episode count of an extended one (DONE removed first)."""
+    if run_episodes == config["episodes"]:
+        return
     out_dir.mkdir(parents=True, exist_ok=True)
-    text = json.dumps({**config, "git_commit": git_commit()}, indent=2) + "\n"
+    (out_dir / "DONE").unlink(missing_ok=True)
+    path = out_dir / "config.json"
+    commit = json.loads(path.read_text()).get("git_commit") if path.is_file() else git_commit()
+    text = json.dumps({**config, "git_commit": commit}, indent=2) + "\n"
     checkpoint.atomic_write_bytes(path, lambda f: f.write(text.encode()))
-    return config
+
+
+def _finished(out_dir: Path) -> bool:
+    """DONE is there and the final checkpoint loads; a damaged one un-finishes the run (with a warning)."""
+    if not (out_dir / "DONE").is_file():
+        return False
+    try:
+        checkpoint.load(out_dir / "checkpoints" / checkpoint.LATEST, required=CKPT_KEYS)
+        return True
+    except checkpoint.CheckpointError as e:
+        say(f"warning: {out_dir} is marked finished but {e}; continuing from the newest intact checkpoint")
+        (out_dir / "DONE").unlink()
+        return False
 
 
 def _diff(old: dict[str, Any], new: dict[str, Any], prefix: str = "") -> list[str]:
@@ -335,7 +409,25 @@ def _validate(cfg: TrainConfig) -> None:
         raise ValueError(f"babbling_episodes must be >= 0, got {cfg.agent.babbling_episodes}")
     if cfg.device not in ("cpu", "cuda") and not cfg.device.startswith("cuda:"):
         raise ValueError(f"device must be 'cpu' or 'cuda', got {cfg.device!r}")
+    check_device(cfg.device)
+    if cfg.precision not in ("fp32", "bf16"):
+        raise ValueError(f"precision must be 'fp32' or 'bf16', got {cfg.precision!r}")
+    if cfg.actuation not in ("servo", "kinematic"):
+        raise ValueError(f"actuation must be 'servo' or 'kinematic', got {cfg.actuation!r}")
     task_spec(cfg)  # unknown task -> KeyError listing the known ones; bad override -> TaskSpecError
+
+
+def check_device(device: str) -> None:
+    """A CUDA device that this machine (or this torch build) lacks is an error naming the way out."""
+    if not device.startswith("cuda"):
+        return
+    if not torch.cuda.is_available():
+        build = "a CPU-only build" if torch.version.cuda is None else f"built for CUDA {torch.version.cuda}"
+        raise ValueError(f"device {device!r}: CUDA is not available here (torch {torch.__version__}, {build}); "
+                         "use --device cpu, or set up with APAC_MJ_TORCH=cuda on a machine with a GPU (README)")
+    index = int(device.split(":")[1]) if ":" in device else 0
+    if index >= torch.cuda.device_count():
+        raise ValueError(f"device {device!r}: this machine has {torch.cuda.device_count()} CUDA device(s)")
 
 
 def write_metrics(path: Path, rows: list[dict[str, Any]]) -> None:
@@ -348,22 +440,39 @@ def write_metrics(path: Path, rows: list[dict[str, Any]]) -> None:
 
 def _save(out_dir: Path, config: dict[str, Any], loop: LoopState, agent: Agent, env: VecEnv,
           babble_gens: list[torch.Generator], rows: list[dict[str, Any]]) -> None:
+    """metrics.parquet, then the checkpoint as latest.pt (the one before it kept as previous.pt)."""
     write_metrics(out_dir / "metrics.parquet", rows)
     ckpt = {"config": config, "loop": loop.state_dict(), "agent": agent.state_dict(), "env": env.get_state(),
             "babbling_generators": [g.get_state() for g in babble_gens], "metric_rows": len(rows),
             "torch_rng": torch.get_rng_state()}
     ckpt_dir = out_dir / "checkpoints"
-    checkpoint.save(ckpt, ckpt_dir / f"ckpt_{loop.slowest():08d}.pt")
-    checkpoint.save(ckpt, ckpt_dir / "latest.pt")
-    checkpoint.prune(ckpt_dir, "ckpt_*.pt", KEEP_CHECKPOINTS)
+    checkpoint.save_rotating(ckpt, ckpt_dir / checkpoint.LATEST, ckpt_dir / checkpoint.PREVIOUS)
+    checkpoint.prune(ckpt_dir, "ckpt_*.pt", 0)  # the numbered checkpoints of older versions
 
 
-def _restore(path: Path, config: dict[str, Any], agent: Agent, env: VecEnv,
+def _restore(out_dir: Path, config: dict[str, Any], agent: Agent, env: VecEnv,
              babble_gens: list[torch.Generator]) -> tuple[LoopState, list[dict[str, Any]]]:
-    ckpt = checkpoint.load(path, required=CKPT_KEYS)
-    if _diff(ckpt["config"], config):
+    """Load the newest intact checkpoint (warning when it is not latest.pt) into the agent and env."""
+    metrics = out_dir / "metrics.parquet"
+    restored: dict[str, Any] = {}
+
+    def check(ckpt: dict[str, Any], path: Path) -> None:
+        restored["rows"] = read_metric_rows(metrics, int(ckpt["metric_rows"]))
+        restored["loop"] = _apply(ckpt, path, config, agent, env, babble_gens)
+
+    checkpoint.load_newest_intact(checkpoint.run_checkpoints(out_dir / "checkpoints"), required=CKPT_KEYS,
+                                  check=check, warn=say)
+    return restored["loop"], restored["rows"]
+
+
+def _apply(ckpt: dict[str, Any], path: Path, config: dict[str, Any], agent: Agent, env: VecEnv,
+           babble_gens: list[torch.Generator]) -> LoopState:
+    """Put a loaded checkpoint into the agent, the environments and the generators (same config but
+    the episode count, which an extended run changes)."""
+    diff = _diff({**ckpt["config"], "episodes": None}, {**config, "episodes": None})
+    if diff:
         raise checkpoint.CheckpointError(f"checkpoint {path} is corrupt or incompatible: it was written with a "
-                                         f"different config ({'; '.join(_diff(ckpt['config'], config))})")
+                                         f"different config ({'; '.join(diff)})")
     try:
         agent.load_state_dict(_to_device(ckpt["agent"], agent.device))
         env.set_state(ckpt["env"])
@@ -374,8 +483,7 @@ def _restore(path: Path, config: dict[str, Any], agent: Agent, env: VecEnv,
         raise checkpoint.CheckpointError(f"checkpoint {path} is corrupt or incompatible: "
                                          f"{type(e).__name__}: {e}") from None
     torch.set_rng_state(ckpt["torch_rng"])
-    rows = read_metric_rows(path.parent.parent / "metrics.parquet", int(ckpt["metric_rows"]))
-    return loop, rows
+    return loop
 
 
 def _to_device(obj: Any, device: torch.device) -> Any:
@@ -411,8 +519,6 @@ def _recorder(out_dir: Path, record_every: int | None, config: dict[str, Any]) -
     """``apac_mj.recording.EpisodeRecorder(out_dir / "recordings", record_every, config)`` if asked for."""
     if record_every is None:
         return None
-    if record_every < 1:
-        raise ValueError(f"record_every must be >= 1, got {record_every}")
     from apac_mj import recording
     if not hasattr(recording, "EpisodeRecorder"):
         raise RuntimeError("--record-every needs apac_mj.recording.EpisodeRecorder, which this version lacks")

@@ -89,9 +89,39 @@ def test_changed_configuration_is_refused(tmp_path: Path) -> None:
     cell = grid.cells(p)[0]
     grid.prepare_cell(cell, p, tmp_path)
     grid.prepare_cell(cell, p, tmp_path)  # same configuration: fine
-    q = grid.load_preset("smoke", ["episodes=9"])
-    with pytest.raises(ValueError, match=r"different configuration \(train_config.episodes: 4 there, 9 now\)"):
+    q = grid.load_preset("smoke", ["agent.batch_size=9"])
+    with pytest.raises(ValueError, match=r"different configuration \(train_config.agent.batch_size: 16 there, 9 now\)"):
         grid.prepare_cell(cell, q, tmp_path)
+    assert grid.cell_status(cell, grid.load_preset("smoke", ["episodes=9"]), tmp_path) == \
+        ("to extend", "from 4 to 9 episodes")
+    with pytest.raises(ValueError, match="its run has 4 episodes, more than the 3 asked for"):
+        grid.prepare_cell(cell, grid.load_preset("smoke", ["episodes=3"]), tmp_path)
+
+
+def test_refused_grid_creates_nothing_and_dry_run_says_so(tmp_path: Path, capsys) -> None:
+    p = grid.load_preset("smoke")
+    grid.prepare_cell(grid.cells(p)[1], p, tmp_path)  # results of the smoke preset, one cell started
+    before = sorted(tmp_path.iterdir())
+    args = ["grid", "--preset", "smoke", "--out", str(tmp_path), "--set", "agent.batch_size=9"]
+    assert main(args + ["--dry-run"]) == 2
+    captured = capsys.readouterr()
+    refused = [line for line in captured.out.splitlines() if "refused" in line]
+    assert len(refused) == 1 and grid.cells(p)[1].name in refused[0] and "batch_size: 16 there, 9 now" in refused[0]
+    assert "1 of 9 cells refused, nothing run" in captured.err
+    assert main(args + ["--no-progress"]) == 2
+    assert sorted(tmp_path.iterdir()) == before  # no stray cell directories, no manifest
+
+
+def test_grid_extends_finished_cells(tmp_path: Path, stack: None, capsys) -> None:
+    """episodes=2, then episodes=4 on the same --out: the numbers of a clean 4-episode grid."""
+    clean, ext = tmp_path / "clean", tmp_path / "ext"
+    cmd = ["grid", "--preset", "smoke", "--no-progress", *[a for s in TINY for a in ("--set", s)]]
+    assert main(cmd + ["--out", str(clean)]) == 0
+    assert main(cmd + ["--out", str(ext), "--set", "episodes=2"]) == 0
+    assert main(cmd + ["--out", str(ext), "--dry-run"]) == 0
+    assert "to extend (from 2 to 4 episodes)" in capsys.readouterr().out
+    assert main(cmd + ["--out", str(ext)]) == 0
+    _assert_same_results(clean, ext)
 
 
 def test_atomic_write_leaves_no_temporary_files(tmp_path: Path) -> None:
@@ -184,3 +214,26 @@ def test_demo_writes_report_and_recording(tmp_path: Path, stack: None, capsys) -
     rrd = out / "apac__changing_target.rrd"
     assert rrd.stat().st_size > 10_000 and f"recording: {rrd}" in printed
     assert (out / "report" / "report.md").exists() and f"{out / 'report'}/fig*.png" in printed
+
+
+@pytest.mark.parametrize("command", [["evaluate"], ["record", "--run"]])
+def test_evaluate_and_record_on_a_grid_directory_list_its_cells(tmp_path: Path, capsys, command) -> None:
+    p = grid.load_preset("smoke")
+    for c in grid.cells(p)[:2]:
+        (grid.prepare_cell(c, p, tmp_path) / "config.json").write_text("{}")
+    assert main(command + [str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "is a grid's results directory, not a run directory" in err
+    assert all(str(tmp_path / c.name) in err for c in grid.cells(p)[:2])
+
+
+def test_demo_duration_is_stated_once() -> None:
+    """README, `apac-mj demo --help` and demo.toml give the same duration."""
+    import re
+
+    from apac_mj.commands import demo
+
+    texts = {"README": (ROOT / "README.md").read_text().split("## Quick tour")[0], "demo --help": demo.DESCRIPTION,
+             "demo.toml": (ROOT / "tasks" / "presets" / "demo.toml").read_text()}
+    found = {k: set(re.findall(r"about (\d+) minutes", t.replace("\n", " "), flags=re.I)) for k, t in texts.items()}
+    assert all(len(v) == 1 for v in found.values()) and len(set.union(*found.values())) == 1, found

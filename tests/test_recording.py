@@ -4,6 +4,7 @@ from __future__ import annotations
 import shutil
 import subprocess
 import sys
+import json
 from pathlib import Path
 
 import imageio.v3 as iio
@@ -240,6 +241,21 @@ def test_record_command_loads_a_run(tiny_run, tmp_path):
     # the run finished 3 training episodes: the arbitrator sees episode 3 (past planning_episodes=1)
     assert set(entities[R.DISTANCE].times["episode"]) == {3}
     assert main(["record", "--run", str(run_dir), "--member", "2", "--out", str(tmp_path / "x.rrd")]) == 2
+
+
+def test_record_says_when_agent_or_task_differ_from_the_run(tiny_run, tmp_path, capsys):
+    from apac_mj.cli import main
+
+    run_dir, _ = tiny_run
+    trained = json.loads((run_dir / "config.json").read_text())
+    other = "spac" if trained["agent"]["agent"] != "spac" else "apac"
+    args = ["record", "--run", str(run_dir), "--episodes", "1", "--out", str(tmp_path / "o.rrd")]
+    assert main(args) == 0
+    assert "note:" not in capsys.readouterr().err
+    assert main(args + ["--agent", other, "--task", "static_target"]) == 0
+    err = capsys.readouterr().err
+    assert f"trained {trained['agent']['agent']}; recording its networks arbitrated as {other}" in err
+    assert f"trained on {trained['task']}; recording on static_target" in err
 
 
 def test_dashed_forward_model_arm_geometry():

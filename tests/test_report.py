@@ -105,7 +105,10 @@ def test_test_success_matches_parquet(made) -> None:
     for agent in ("ddpg", "spac", "apac"):
         for cond in ("static_target", "changing_target"):
             df = pd.read_parquet(results / f"{agent}__{cond}" / "eval" / "grid.parquet")
-            m, lo, hi = _ci([100 * g["success"].mean() for _, g in df.groupby("seed")])
+            per = [100 * g["success"].mean() for _, g in df.groupby("seed")]
+            blo, bhi = report.bootstrap_interval(per)
+            w = stats.binomtest(int(df["success"].sum()), len(df)).proportion_ci(0.95, method="wilson")
+            m, lo, hi = np.mean(per), min(blo, 100 * w.low), max(bhi, 100 * w.high)
             r = _row(table, "test_success", agent, cond)
             assert (r["mean"], r["ci95_low"], r["ci95_high"]) == pytest.approx((m, lo, hi))
             assert f"| {m:.2f} | [{lo:.2f}, {hi:.2f}] |" in md
@@ -151,6 +154,143 @@ def test_load_results_is_tidy(made) -> None:
     tests = grid.load_tests(results)
     assert set(tests["protocol"]) == {"grid", "occluded", "generalization"}
     assert set(tests.loc[tests["protocol"] == "occluded", "agent"]) == {"spac", "apac"}
+
+
+def test_intervals_respect_the_quantity(made) -> None:
+    """Rates stay in [0, 100] and distances >= 0 however few the seeds; rates contain the pooled count's
+    Wilson interval (computed here by scipy)."""
+    results, out = made
+    table = report.load_key_numbers(out)
+    for r in table.itertuples():
+        if math.isnan(r.ci95_low):
+            continue
+        assert r.ci95_low <= r.mean <= r.ci95_high, r
+        if r.unit == "%":
+            assert 0 <= r.ci95_low and r.ci95_high <= 100, r
+        if r.unit in ("cm", "steps", "habit-step units"):
+            assert r.ci95_low >= 0, r
+    df = pd.read_parquet(results / "apac__changing_target" / "eval" / "grid.parquet")
+    wilson = stats.binomtest(int(df["success"].sum()), len(df)).proportion_ci(0.95, method="wilson")
+    r = _row(table, "test_success", "apac", "changing_target")
+    assert r["ci95_low"] <= 100 * wilson.low + 1e-9 and r["ci95_high"] >= 100 * wilson.high - 1e-9
+    assert r["samples"] == len(df) and r["per_seed"].count(":") == 3
+
+
+def test_extreme_rates_and_distances_stay_in_range() -> None:
+    """What the Student-t interval got wrong (issue 11): [97.05, 101.83] %, [-2.56, 7.00] %, [-2.02, 13.59] cm."""
+    assert report.t_interval([100, 100, 96.0])[2] > 100  # the old interval leaves the range
+    m, lo, hi = report.interval([100, 100, 96.0], k=[100, 100, 96], n=[100, 100, 100])
+    assert m == pytest.approx(98.6667) and 0 <= lo < m and hi == 100
+    m, lo, hi = report.interval([0.0, 0.0, 4.0], k=[0, 0, 4], n=[100, 100, 100])
+    assert lo == 0 and hi > 4 / 3
+    assert report.t_interval([0.1, 0.2, 11.0])[1] < 0
+    m, lo, hi = report.interval([0.1, 0.2, 11.0])
+    assert 0.1 <= lo <= hi <= 11.0
+    m, lo, hi = report.interval([100.0], k=[100], n=[100])  # one seed: the rate still has an interval
+    assert lo == pytest.approx(100 * stats.binomtest(100, 100).proportion_ci(method="wilson").low) and hi == 100
+    assert math.isnan(report.interval([3.0])[1])  # a single distance has none
+
+
+def test_bootstrap_matches_the_t_interval_for_many_normal_seeds() -> None:
+    v = np.random.default_rng(1).normal(10, 2, size=400)
+    _, tlo, thi = report.t_interval(v)
+    blo, bhi = report.bootstrap_interval(v)
+    assert blo == pytest.approx(tlo, abs=0.05) and bhi == pytest.approx(thi, abs=0.05)
+    k1, n1, k2, n2 = 56, 70, 48, 80  # Newcombe (1998), example (method 10): 0.0524 to 0.3339
+    assert report.newcombe_interval(k1, n1, k2, n2) == pytest.approx((0.0524, 0.3339), abs=5e-4)
+
+
+def test_few_samples_are_counted(made, tmp_path) -> None:
+    """A mean over 1 of 12 targets says so: in the table (samples, samples_of) and in report.md."""
+    results, _ = made
+    f = results / "ddpg__changing_target" / "eval" / "grid.parquet"
+    df = pd.read_parquet(f)
+    df["success"] = False
+    df.loc[df.index[0], "success"] = True
+    copy = tmp_path / "r"
+    import shutil
+    shutil.copytree(results, copy)
+    df.to_parquet(copy / "ddpg__changing_target" / "eval" / "grid.parquet")
+    out = report.write_report(copy, draw=False)
+    r = _row(report.load_key_numbers(out), "test_steps_to_reach", "ddpg", "changing_target")
+    assert (r["samples"], r["samples_of"], r["n_seeds"]) == (1, 36, 1)
+    assert "| 1 | 1* of 36 |" in (out / "report.md").read_text()
+
+
+def test_differences_of_the_key_comparisons(made) -> None:
+    results, out = made
+    diffs = pd.read_csv(out / "differences.csv")
+    row = diffs[(diffs["quantity"] == "test_success") & (diffs["comparison"] == "APAC cs - SPAC cs")].iloc[0]
+    a = pd.read_parquet(results / "apac__changing_target" / "eval" / "grid.parquet").groupby("seed")["success"].mean()
+    b = pd.read_parquet(results / "spac__changing_target" / "eval" / "grid.parquet").groupby("seed")["success"].mean()
+    assert row["difference"] == pytest.approx(100 * (a - b).mean())
+    assert -100 <= row["ci95_low"] <= row["difference"] <= row["ci95_high"] <= 100
+    assert row["interval"].startswith("paired bootstrap")
+    assert set(diffs["quantity"]) == {"train_success_late", "test_success", "habit_fraction_late"}
+    assert "APAC cc - APAC ss" in set(diffs["comparison"])
+    assert "## Key differences" in (out / "report.md").read_text()
+
+
+def test_figures_show_the_tables_numbers(made, tmp_path, monkeypatch) -> None:
+    """Fig. 4's bars and error bars are the table's means and intervals (no clipping); Fig. 9's legend
+    numbers are the table's; no title is cut off at the figure's edge."""
+    import matplotlib.axes
+
+    results, _ = made
+    bars, hlines, figs = [], [], []
+    real_bar, real_axhline, real_close = matplotlib.axes.Axes.bar, matplotlib.axes.Axes.axhline, report.plt.close
+
+    def bar(self, x, height, *a, yerr=None, **k):
+        bars.append((np.asarray(height, float), np.asarray(yerr, float), k.get("label")))
+        return real_bar(self, x, height, *a, yerr=yerr, **k)
+
+    def axhline(self, *a, **k):
+        hlines.append(k.get("label"))
+        return real_axhline(self, *a, **k)
+
+    def close(fig):
+        fig.canvas.draw()
+        renderer = fig.canvas.get_renderer()
+        w, h = fig.bbox.width, fig.bbox.height
+        e = fig._suptitle.get_window_extent(renderer)
+        figs.append((fig._suptitle.get_text(), e.x0 >= -1 and e.x1 <= w + 1 and e.y1 <= h + 1))
+        for ax in fig.axes:  # a panel's title stays within the figure and (nearly) within its panel
+            if ax.get_visible():
+                e, box = ax.title.get_window_extent(renderer), ax.get_window_extent(renderer)
+                figs.append((ax.title.get_text(), e.x0 >= -1 and e.x1 <= w + 1 and e.width <= 1.1 * box.width))
+        real_close(fig)
+
+    monkeypatch.setattr(matplotlib.axes.Axes, "bar", bar)
+    monkeypatch.setattr(matplotlib.axes.Axes, "axhline", axhline)
+    monkeypatch.setattr(report.plt, "close", close)
+    out = report.write_report(results, tmp_path / "rep")
+    table = report.load_key_numbers(out)
+    sel = table[(table["quantity"] == "test_success") & (table["condition"] == "static_target")]
+    height, yerr, label = bars[0]  # first bar group of Fig. 4: DDPG over the conditions
+    r = sel[sel["agent"] == "ddpg"].iloc[0]
+    assert label == "DDPG" and height[0] == pytest.approx(r["mean"])
+    assert yerr[:, 0] == pytest.approx([r["mean"] - r["ci95_low"], r["ci95_high"] - r["mean"]])
+    dist = _row(table, "occluded_distance_judged", "apac", "changing_target")["mean"]
+    assert f"their distance: {dist:.2f} cm" in hlines
+    cut = [t for t, inside in figs if not inside]
+    assert not cut, cut
+
+
+def test_no_typos_and_no_empty_panels(tmp_path, capsys) -> None:
+    """Fig. 8 is not drawn without generalization cells (report.md says so); no 'kin..', 'over 1 episodes'."""
+    results = make_results(tmp_path / "r", seeds=(0, 1), episodes=10)
+    for d in results.glob("*_train_region"):
+        import shutil
+        shutil.rmtree(d)
+    out = report.write_report(results)
+    md = (out / "report.md").read_text()
+    assert not (out / "fig8_generalization.png").exists() and "not drawn, these results have no data" in md
+    assert "kin.." not in md and "static kinematics" in md
+    assert not set(report.COND_COLOR.values()) & set(report.AGENT_COLOR.values())
+    assert report._episodes(1) == "1 episode"
+    with pytest.raises(SystemExit):
+        main(["report", "--help"])
+    assert "95%%" not in capsys.readouterr().out
 
 
 def test_t_interval() -> None:

@@ -45,7 +45,9 @@ def test_run_directory_contents(tmp_path):
     cfg = json.loads((run / "config.json").read_text())
     assert cfg["seeds"] == [0, 1] and "git_commit" in cfg
     assert (run / "DONE").is_file()
-    assert sorted(p.name for p in (run / "checkpoints").glob("ckpt_*.pt")) == ["ckpt_00000002.pt", "ckpt_00000004.pt"]
+    # What resume needs: the final checkpoint and the one before it (a fallback), nothing more.
+    assert sorted(p.name for p in (run / "checkpoints").iterdir()) == ["latest.pt", "previous.pt"]
+    assert checkpoint.load(run / "checkpoints" / "previous.pt")["loop"]["episode"].tolist() == [2, 2]
 
 
 def test_ensemble_member_equals_single_seed(tmp_path):
@@ -87,8 +89,8 @@ def test_resume_equals_uninterrupted(tmp_path):
 
 def test_config_mismatch_is_a_clear_error(tmp_path):
     train(tiny_config(episodes=2), tmp_path / "run", progress=False)
-    with pytest.raises(ValueError, match="different config.*episodes"):
-        train(tiny_config(episodes=3), tmp_path / "run", progress=False)
+    with pytest.raises(ValueError, match="different config.*seeds"):
+        train(tiny_config(seeds=(0, 2), episodes=2), tmp_path / "run", progress=False)
 
 
 @pytest.mark.parametrize("damage", ["truncate", "garbage"])
@@ -96,6 +98,7 @@ def test_corrupt_checkpoint_is_a_clear_error(tmp_path, damage):
     cfg = tiny_config(episodes=4)
     run = tmp_path / "run"
     train(cfg, run, progress=False)
+    (run / "checkpoints" / "previous.pt").unlink()  # no intact checkpoint left to fall back to
     latest = run / "checkpoints" / "latest.pt"
     data = latest.read_bytes()
     latest.write_bytes(data[: len(data) // 2] if damage == "truncate"
@@ -130,7 +133,9 @@ def test_cli_train_then_evaluate(tmp_path, capsys):
     tiny = [f"--set={k}={','.join(map(str, v)) if isinstance(v, tuple) else v}" for k, v in TINY.items()]
     assert main(args + tiny) == 0
     assert json.loads((run / "config.json").read_text())["seeds"] == [2, 3]
-    assert main(args + tiny) == 0  # finished run: returns at once
+    assert '"status": "trained"' in capsys.readouterr().out
+    assert main(args + tiny) == 0  # finished run: returns at once, and says so
+    assert '"status": "already finished; nothing trained"' in capsys.readouterr().out
     assert main(["evaluate", str(run), "--limit", "2", "--no-progress"]) == 0
     out = capsys.readouterr().out
     assert '"success_rate"' in out and (run / "eval" / "grid.parquet").is_file()
@@ -244,3 +249,143 @@ def test_replay_action_for_the_critic(tmp_path, critic_action):
         assert torch.equal(learned, executed)
     else:  # some commands left the joint range (measured: 5 of the 64 transitions kept)
         assert clipped.any()
+
+
+# -- issue 11: run directories --------------------------------------------------------------
+
+def _modes(run: Path) -> dict[str, int]:
+    return {str(p.relative_to(run)): p.stat().st_mode & 0o777 for p in run.rglob("*") if p.is_file()}
+
+
+def test_result_files_honour_the_umask(tmp_path):
+    import os
+
+    old = os.umask(0o022)
+    try:
+        run = train(tiny_config(seeds=(0,), episodes=4), tmp_path / "run", progress=False)
+    finally:
+        os.umask(old)
+    modes = _modes(run)
+    assert {"config.json", "metrics.parquet", "DONE", "checkpoints/latest.pt", "checkpoints/previous.pt"} <= set(modes)
+    assert set(modes.values()) == {0o644}, modes
+    old = os.umask(0o077)
+    try:
+        checkpoint.atomic_write_bytes(tmp_path / "private", lambda f: f.write(b"x"))
+    finally:
+        os.umask(old)
+    assert (tmp_path / "private").stat().st_mode & 0o777 == 0o600
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="needs a machine without CUDA")
+def test_failed_start_leaves_nothing_behind(tmp_path):
+    cfg = tiny_config(seeds=(0,), episodes=2)
+    cfg.device = "cuda"
+    with pytest.raises(ValueError, match="CUDA is not available.*--device cpu"):
+        train(cfg, tmp_path / "run", progress=False)
+    assert not (tmp_path / "run").exists()
+    cfg.device = "cpu"
+    assert (train(cfg, tmp_path / "run", progress=False) / "DONE").is_file()
+
+
+def test_bad_agent_config_writes_no_config(tmp_path, monkeypatch):
+    from apac_mj import trainer
+
+    def broken(*a, **k):
+        raise RuntimeError("agent construction failed")
+
+    monkeypatch.setattr(trainer, "Agent", broken)
+    with pytest.raises(RuntimeError, match="construction failed"):
+        train(tiny_config(seeds=(0,), episodes=2), tmp_path / "run", progress=False)
+    assert not (tmp_path / "run" / "config.json").exists()
+
+
+def _sorted_metrics(run: Path) -> pd.DataFrame:
+    df = pd.read_parquet(run / "metrics.parquet")
+    return df.sort_values(["seed", "episode"], kind="stable").reset_index(drop=True)
+
+
+def test_extending_a_finished_run_equals_a_longer_run(tmp_path, capsys):
+    full = train(tiny_config((0, 1), episodes=6), tmp_path / "full", progress=False)
+    short = train(tiny_config((0, 1), episodes=3), tmp_path / "ext", progress=False)
+    assert (short / "DONE").is_file()
+    capsys.readouterr()
+    extended = train(tiny_config((0, 1), episodes=6), tmp_path / "ext", progress=False)
+    assert f"extending {tmp_path / 'ext'} from 3 to 6 episodes: resuming at episode 3" in capsys.readouterr().err
+    pd.testing.assert_frame_equal(_sorted_metrics(full), _sorted_metrics(extended), check_exact=True)
+    wa, wb = final_weights(full), final_weights(extended)
+    assert all(torch.equal(wa[k], wb[k]) for k in wa)
+    assert json.loads((extended / "config.json").read_text())["episodes"] == 6
+    with pytest.raises(ValueError, match="cannot be shortened to 4"):
+        train(tiny_config((0, 1), episodes=4), tmp_path / "ext", progress=False)
+    with pytest.raises(ValueError, match="different config.*batch_size"):
+        train(tiny_config((0, 1), episodes=8, batch_size=4), tmp_path / "ext", progress=False)
+
+
+def test_damaged_latest_falls_back_to_previous(tmp_path, capsys):
+    """A truncated latest.pt of a finished run: train warns, resumes from previous.pt and ends where it
+    ended; evaluate warns and uses previous.pt."""
+    from apac_mj.evaluate import evaluate
+
+    cfg = tiny_config((0, 1), episodes=4)
+    run = train(cfg, tmp_path / "run", progress=False)
+    before = _sorted_metrics(run)
+    weights = final_weights(run)
+    latest = run / "checkpoints" / "latest.pt"
+    with open(latest, "r+b") as f:
+        f.truncate(1000)
+    capsys.readouterr()
+    evaluate(run, protocols=("grid",), limit=1)
+    assert "using the newest intact checkpoint" in capsys.readouterr().err
+    with open(latest, "r+b") as f:
+        f.truncate(1000)
+    train(cfg, run, progress=False)
+    err = capsys.readouterr().err
+    assert "marked finished but checkpoint" in err and "corrupt" in err
+    assert f"using the newest intact checkpoint, {run / 'checkpoints' / 'previous.pt'}" in err
+    assert "2 of 4 episodes done" in err
+    pd.testing.assert_frame_equal(before, _sorted_metrics(run), check_exact=True)
+    assert all(torch.equal(weights[k], final_weights(run)[k]) for k in weights)
+    assert (run / "DONE").is_file()
+
+
+def test_resume_finish_and_interrupt_are_said(tmp_path, capsys):
+    cfg = tiny_config((0,), episodes=4)
+    run = tmp_path / "run"
+
+    def interrupt_after_checkpoint(info, env):
+        if (run / "checkpoints" / "latest.pt").is_file():
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        train(cfg, run, progress=False, on_step=interrupt_after_checkpoint)
+    err = capsys.readouterr().err
+    assert f"interrupted: {run}/checkpoints/latest.pt holds the run after 2 of 4 episodes" in err
+    assert "run the same command again to resume" in err
+    train(cfg, run, progress=False)
+    assert f"resuming {run} from its checkpoint: 2 of 4 episodes done" in capsys.readouterr().err
+    train(cfg, run, progress=False)
+    assert f"{run} already finished 4 episodes; nothing to train" in capsys.readouterr().err
+
+    def interrupt_at_once(info, env):
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        train(cfg, tmp_path / "other", progress=False, on_step=interrupt_at_once)
+    assert "nothing saved yet" in capsys.readouterr().err
+
+
+def test_cli_without_arguments_prints_help(capsys):
+    from apac_mj.cli import main
+
+    assert main([]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("usage: apac-mj") and "train" in out and "evaluate" in out
+
+
+def test_cli_device_without_cuda_leaves_no_run_dir(tmp_path, capsys):
+    from apac_mj.cli import main
+
+    if torch.cuda.is_available():
+        pytest.skip("needs a machine without CUDA")
+    assert main(["train", "--episodes", "1", "--device", "cuda", "--out", str(tmp_path / "x"), "--no-progress"]) == 2
+    assert "CUDA is not available" in capsys.readouterr().err and not (tmp_path / "x").exists()

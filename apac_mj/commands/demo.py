@@ -8,7 +8,7 @@ A small, real version of the paper's study on this machine (no service needed):
 DDPG, SPAC and APAC trained on changing_target for a few seeds and a few hundred
 episodes (preset tasks/presets/demo.toml), tested on the angle-grid targets and
 under occluded vision, reported as the paper's figures and key-number table,
-and three episodes of the trained APAC recorded with Rerun. About 10 minutes on a
+and three episodes of the trained APAC recorded with Rerun. About 7 minutes on a
 2-core CPU. Re-running resumes where it stopped; it prints where the figures,
 the table and the recording are.
 

@@ -11,7 +11,9 @@ examples:
   apac-mj grid --preset my_grid.toml --executor ray --ray-address auto
 
 Re-running the same command skips finished cells and resumes unfinished ones from their last
-checkpoint; the numbers equal those of an uninterrupted run. Presets live in tasks/presets/
+checkpoint; the numbers equal those of an uninterrupted run. A larger episodes (--set episodes=N,
+all else the same) extends finished cells and tests them again; any other change for an existing
+--out is refused before anything is written. --dry-run shows what a run would do, refusals included. Presets live in tasks/presets/
 (copy one and edit it); docs/experiments.md describes the fields and the results layout."""
 
 
@@ -50,8 +52,10 @@ def run(args: argparse.Namespace) -> int:
     print(grid.describe(preset))
     if args.dry_run:
         for c in grid.cells(preset):
-            status = "done" if grid.cell_done(out / c.name) else "to run"
-            print(f"  {c.name:58s} tests={','.join(c.protocols) or '-':20s} {status}")
+            status, why = grid.cell_status(c, preset, out)
+            detail = f" ({why})" if status == "to extend" else f": {why}" if why else ""
+            print(f"  {c.name:58s} tests={','.join(c.protocols) or '-':20s} {status}{detail}")
+        grid.check_grid(preset, out)  # a refused cell: the same error (exit 2) as the real run
         return 0
     executor = make_executor(args.executor, workers=args.workers, ray_address=args.ray_address)
     manifest = grid.run_grid(preset, out, executor, progress=not args.no_progress)

@@ -84,8 +84,10 @@ def _check_args(args: argparse.Namespace) -> None:
         raise ValueError(f"--fps must be >= 1, got {args.fps}")
     if args.seed < 0 or args.member < 0:
         raise ValueError("--seed and --member must be >= 0")
-    if args.run is not None and not args.run.is_dir():
-        raise FileNotFoundError(f"--run {args.run} is not a directory")
+    if args.run is not None and not (args.run / "config.json").is_file():
+        from apac_mj.evaluate import not_a_run_dir
+
+        raise FileNotFoundError(f"--run: {not_a_run_dir(args.run, 'record --run')}")
 
 
 def _load_agent(args: argparse.Namespace) -> tuple[Any, Any, int, dict[str, Any] | None]:
@@ -102,7 +104,9 @@ def _load_agent(args: argparse.Namespace) -> tuple[Any, Any, int, dict[str, Any]
         agent = Agent(cfg.agent, cfg.seeds, geometry=Geometry.from_spec(task_spec(cfg)))
         first = cfg.agent.planning_episodes if args.as_episode is None else args.as_episode
         return cfg, agent, first, None
-    ckpt = checkpoint.load(args.run / "checkpoints" / "latest.pt", required=("config", "agent", "loop", "env"))
+    from apac_mj.evaluate import warn_user
+
+    ckpt = checkpoint.load_run_checkpoint(args.run, required=("config", "agent", "loop", "env"), warn=warn_user)
     run_cfg = dict(ckpt["config"])
     run_cfg.pop("git_commit", None)
     cfg = train_config_from_dict(run_cfg)
@@ -110,12 +114,25 @@ def _load_agent(args: argparse.Namespace) -> tuple[Any, Any, int, dict[str, Any]
         raise ValueError(f"--member {args.member} out of range: the run has {len(cfg.seeds)} seeds {list(cfg.seeds)}")
     agent = Agent(cfg.agent, cfg.seeds, geometry=Geometry.from_spec(task_spec(cfg)))
     agent.load_state_dict(ckpt["agent"])
+    _say_overrides(args, cfg)
     if args.agent is not None:
         cfg.agent.agent = args.agent
     env_state = ckpt["env"] if args.task in (None, cfg.task) else None
     cfg.task = args.task or cfg.task
     trained = int(ckpt["loop"]["episode"][args.member])
     return cfg, agent, max(trained, 0) if args.as_episode is None else args.as_episode, env_state
+
+
+def _say_overrides(args: argparse.Namespace, cfg: Any) -> None:
+    """With --run, an --agent or --task other than the run's is allowed but said."""
+    import sys
+
+    if args.agent not in (None, cfg.agent.agent):
+        print(f"note: {args.run} trained {cfg.agent.agent}; recording its networks arbitrated as {args.agent} "
+              f"(--agent {args.agent})", file=sys.stderr)
+    if args.task not in (None, cfg.task):
+        print(f"note: {args.run} trained on {cfg.task}; recording on {args.task} (--task) with fresh environments "
+              f"seeded from --seed {args.seed}, not the run's", file=sys.stderr)
 
 
 def _config_dict(cfg: Any) -> dict[str, Any]:

@@ -8,7 +8,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("report", help="figures (PNG) and a markdown summary from a grid's results directory",
                        description="Write the paper's result figures (training success, test success, arbitration, "
                                    "steps and time, trajectories, generalization, occluded vision) and report.md "
-                                   "with every key number, its 95%% confidence interval over seeds and the paper's "
+                                   "with every key number, its 95% interval (bootstrap over seeds; rates also Wilson), the per-seed values, the "
+                                   "count behind it, intervals of the key differences and the paper's "
                                    "stated value, into RESULTS_DIR/report/ (or --out).",
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("results", metavar="RESULTS_DIR", help="a results directory written by apac-mj grid")

@@ -16,8 +16,12 @@ examples:
 The run directory gets config.json (the resolved config and git commit), metrics.parquet (one row
 per seed and episode: success, steps, return, final distance, habit and planning action counts,
 link lengths, target, mean losses of the four networks), checkpoints/ (periodic and final) and
-DONE when finished. Re-running the same command resumes from the last checkpoint with the same
-numbers as an uninterrupted run; a different config for an existing directory is an error."""
+DONE when finished. Files get the usual permissions (0666 minus the umask). Re-running the same
+command resumes from the last checkpoint with the same numbers as an uninterrupted run, and says so;
+on a finished run it does nothing and says so. A larger --episodes (everything else the same)
+extends a finished run, again with the numbers of an uninterrupted run of that length; any other
+difference for an existing directory is an error. A damaged checkpoints/latest.pt falls back, with a
+warning, to checkpoints/previous.pt. Everything is checked before the directory is created."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -118,19 +122,31 @@ def run(args: argparse.Namespace) -> int:
     cfg = TrainConfig(task=args.task, seeds=parse_seeds(args.seeds), episodes=args.episodes, device=args.device,
                       precision=args.precision, checkpoint_every=args.checkpoint_every, actuation=args.actuation,
                       agent=agent)
+    before = _metric_rows(args.out)
     run_dir = train(cfg, args.out, progress=not args.no_progress, record_every=args.record_every)
-    _print_summary(run_dir)
+    _print_summary(run_dir, trained=_metric_rows(run_dir) != before)
     return 0
 
 
-def _print_summary(run_dir) -> None:
+def _metric_rows(run_dir) -> int:
+    """Rows in RUN_DIR/metrics.parquet (0 if none yet), read from the file's footer."""
+    from pathlib import Path
+
+    import pyarrow.parquet as pq
+
+    path = Path(run_dir) / "metrics.parquet"
+    return pq.ParquetFile(path).metadata.num_rows if path.is_file() else 0
+
+
+def _print_summary(run_dir, trained: bool) -> None:
     import pandas as pd
 
     df = pd.read_parquet(run_dir / "metrics.parquet")
     tr = df[df.phase == "train"]
     last = tr[tr.episode >= tr.episode.max() - 99]
     acts = last.habit_actions.sum() + last.planning_actions.sum()
-    print(json.dumps({"run_dir": str(run_dir), "episodes": int(tr.episode.max()) + 1, "seeds": int(df.seed.nunique()),
+    print(json.dumps({"run_dir": str(run_dir), "status": "trained" if trained else "already finished; nothing trained",
+                      "episodes": int(tr.episode.max()) + 1, "seeds": int(df.seed.nunique()),
                       "success_rate_last_100": round(float(last.success.mean()), 4),
                       "habit_share_last_100": round(float(last.habit_actions.sum() / max(1, acts)), 4)}))
     print(f"next: apac-mj evaluate {run_dir}")
