@@ -26,13 +26,13 @@ class AgentConfig:
     critic_hidden: tuple[int, int] = (400, 600)
     #: How state and action enter the critic (networks.EnsembleCritic): "concat" (Table 2 read
     #: literally: [s, a] (8) -> 400 -> 600 -> 1) or "summed" (the DDPG code: s -> 400;
-    #: relu(W h1 + W_a a) (600) -> 1). "separable" (Q = V(s) + A(a), the old bug) is refused
-    #: here: it exists only as the tests' negative control.
+    #: relu(W h1 + W_a a) (600) -> 1). "separable" is the old bug (Q = V(s) + A(a): dQ/da the
+    #: same in every state), kept only as the learning checks' negative control: never use it.
     critic_form: str = "concat"
     #: How the actor's and the inverse model's tanh outputs u in [-1, 1] become joint-angle changes:
     #: "tanh" (the paper: 180 u) or "feasible" (lo + (hi - lo)(u + 1)/2 with [lo, hi] the changes
     #: that keep both joints inside their range from the current pose: no command past a limit).
-    action_squash: str = "tanh"
+    action_squash: str = "feasible"
     #: Forward model hidden layers (sigmoid); output 4 x sigmoid x plane_scale.
     forward_hidden: tuple[int, int] = (400, 300)
     #: Inverse model hidden layers (relu); output 2 x tanh x action_scale.
@@ -61,10 +61,11 @@ class AgentConfig:
     ou_theta: float = 0.15
     #: OU sigma in degrees (the paper gives no value); the final value when annealed.
     ou_sigma: float = 2.0
-    #: OU sigma at training episode 0 (degrees), annealed linearly to ``ou_sigma`` over
-    #: ``ou_sigma_anneal_episodes``; None: constant ``ou_sigma`` (the paper's reading).
-    ou_sigma_initial: float | None = None
-    ou_sigma_anneal_episodes: int = 0
+    #: OU sigma at training episode 0 (degrees; 18 = 10% of the +-180 action range), annealed
+    #: linearly to ``ou_sigma`` over ``ou_sigma_anneal_episodes`` (docs/paper-mapping.md: with a
+    #: constant 2 degrees DDPG misses deceptive static targets); None: constant ``ou_sigma``.
+    ou_sigma_initial: float | None = 18.0
+    ou_sigma_anneal_episodes: int = 150
 
     # -- arbitration (section "Arbitration") ---------------------------------
     #: APAC uses the inverse model only during this many first episodes.
@@ -100,7 +101,7 @@ class AgentConfig:
     critic_action: str = "executed"
     #: Weight of a penalty on actor commands beyond the joint limits (the plant clips them, so the
     #: critic never sees them and extrapolates; 0 = the paper, no penalty).
-    feasibility_weight: float = 1000.0
+    feasibility_weight: float = 0.0
     #: Habit formation from planning (not in the paper; 0 = off): the actor's loss adds
     #: ``w * mean |pi(s) - f_I(s)|^2 / action_scale^2``, pulling the habit towards what the inverse
     #: model proposes in the same state (the inverse model is not changed by it). APAC only: ignored
@@ -128,7 +129,7 @@ class AgentConfig:
             v = getattr(self, name)
             if not (0 < v <= 1):
                 raise ValueError(f"{name} must be in (0, 1], got {v}")
-        for name, choices in (("critic_form", ("concat", "summed")), ("action_squash", ("tanh", "feasible")),
+        for name, choices in (("critic_form", ("concat", "summed", "separable")), ("action_squash", ("tanh", "feasible")),
                               ("delta_rule", ("abs", "signed"))):
             if getattr(self, name) not in choices:
                 raise ValueError(f"{name} must be one of {choices}, got {getattr(self, name)!r}")

@@ -88,7 +88,7 @@ def test_member_without_samples_is_skipped():
 
 @pytest.mark.parametrize("normalize", [False, True])
 def test_td_error_matches_hand_computation(normalize):
-    cfg = small_cfg(gamma=0.9, normalize_inputs=normalize)
+    cfg = small_cfg(gamma=0.9, normalize_inputs=normalize, action_squash="tanh")  # 180 tanh(.) by hand below
     pos = (lambda x: (x - 15.0) / 15.0) if normalize else (lambda x: x)
     act = (lambda u: u / 180.0) if normalize else (lambda u: u)
     agent = Agent(cfg, [3, 4])
@@ -195,7 +195,7 @@ def test_learning_sanity_forward_and_inverse_models():
     """On a toy linear plant the internal models' losses fall."""
     torch.manual_seed(0)
     cfg = small_cfg(forward_hidden=(64, 64), inverse_hidden=(64, 64), replay_size=200, batch_size=64,
-                    normalize_inputs=True)
+                    normalize_inputs=True, action_squash="tanh")  # the toy "arm" is no real pose
     agent = Agent(cfg, [0])
     arm = torch.rand(200, 4) * 10 + 10
     act = (torch.rand(200, 2) - 0.5) * 40
@@ -256,7 +256,7 @@ def test_feasible_squash_keeps_proposals_inside_the_joint_range():
 def test_feasibility_penalty_pulls_commands_back():
     """A saturated actor commanding beyond the joint limits: the penalty (not the paper's;
     feasibility_weight=0 turns it off) moves the command back towards the feasible range."""
-    agent = Agent(small_cfg(feasibility_weight=1000.0, actor_lr=1e-3), [0, 1])
+    agent = Agent(small_cfg(feasibility_weight=1000.0, actor_lr=1e-3, action_squash="tanh"), [0, 1])
     start = torch.tensor([12.0, 15.0, 20.0, 15.0, 9.0, 14.0])  # shoulder 0, elbow 180: only (+, -) moves are possible
     with torch.no_grad():
         agent.actor.layers[-1].bias.copy_(torch.tensor([[-3.0, 3.0]]).expand(2, 1, 2))  # (-180, +180) degrees

@@ -90,13 +90,13 @@ def reference_grads(agent: Agent, k: int, b: dict[str, torch.Tensor]) -> dict[st
 
 
 CONFIGS = {
-    "paper": dict(feasibility_weight=0.0),
-    "raw_inputs": dict(normalize_inputs=False, feasibility_weight=0.0),
-    "summed_critic": dict(critic_form="summed", feasibility_weight=0.0),
-    "feasible_squash": dict(action_squash="feasible", feasibility_weight=0.0),
-    "feasibility_penalty": dict(feasibility_weight=1000.0),
-    "distillation": dict(agent="apac", habit_distillation_weight=10.0, feasibility_weight=0.0),
-    "signed_delta": dict(delta_rule="signed", critic_form="summed", feasibility_weight=3.0),
+    "default": dict(),
+    "paper_tanh": dict(action_squash="tanh"),
+    "raw_inputs": dict(normalize_inputs=False, action_squash="tanh"),
+    "summed_critic": dict(critic_form="summed"),
+    "feasibility_penalty": dict(feasibility_weight=1000.0, action_squash="tanh"),
+    "distillation": dict(agent="apac", habit_distillation_weight=10.0),
+    "summed_penalty": dict(critic_form="summed", feasibility_weight=3.0, action_squash="tanh"),
 }
 
 
