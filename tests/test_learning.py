@@ -16,6 +16,10 @@ over seeds (measured 83%), >= 50% for every seed (measured 80-90%).
 Also (about 8 s): APAC with the paper's 100-episode planning phase on static_target,
 3 seeds x 150 episodes, 64-unit networks: episodes 100-149 reach >= 85%
 (measured ~97%) with a habit share >= 0.3 (measured ~0.5).
+
+CI (about 2 minutes): DDPG alone on static_target with the paper's actor and critic
+sizes, every seed >= 90% of its last 50 episodes. Slow (-m slow): the same with the
+separable critic fails; DDPG on changing targets learns.
 """
 from __future__ import annotations
 
@@ -87,17 +91,39 @@ def test_habit_formation_makes_apac_mostly_habitual(tmp_path):
     assert success[10.0] >= 0.6, success
 
 
+PAPER_NETS = dict(actor_hidden=(400, 300), critic_hidden=(400, 600), forward_hidden=(64, 64),
+                  inverse_hidden=(64, 64), batch_size=64, babbling_episodes=10)
+
+
+def late_success(df, last: int = 50) -> pd.Series:
+    """Success rate of each seed's last ``last`` training episodes."""
+    return df.groupby("seed").apply(lambda d: d[d.episode >= d.episode.max() + 1 - last].success.mean())
+
+
+def test_ddpg_learns_static_target(tmp_path):
+    """DDPG alone (the habit system) on static_target: 3 seeds x 300 episodes, the paper's 400-300 actor and
+    400-600 critic, minibatch 64. Every seed reaches >= 90% of its last 50 episodes (measured 1.00, 1.00, 1.00).
+    Fails with the separable critic (test below) and with the paper-literal tanh x 180 squash and
+    constant 2-degree noise (docs/paper-mapping.md)."""
+    df = run(tmp_path, "ddpg", "static_target", episodes=300, seeds=(0, 1, 2), **PAPER_NETS)
+    late = late_success(df)
+    assert (late >= 0.9).all(), late.tolist()
+
+
 @pytest.mark.slow
-def test_ddpg_learns_static_target_only_with_the_feasibility_penalty(tmp_path):
-    """DDPG (the paper's habit system) on static_target, 3 seeds x 200 episodes, 400-300 networks, minibatch 64:
-    with the paper's update (feasibility_weight=0) the actor saturates past the joint limits and never reaches;
-    with the penalty (default) it reaches in a fair share of the late episodes (measured 0.47-0.48 in 150-199;
-    ~3 minutes on 2 cores)."""
-    nets = dict(actor_hidden=(400, 300), critic_hidden=(400, 600), forward_hidden=(64, 64), inverse_hidden=(64, 64),
-                batch_size=64, babbling_episodes=10)
-    late = {}
-    for w in (0.0, 1000.0):
-        df = run(tmp_path / f"fw{w:g}", "ddpg", "static_target", episodes=200, seeds=(0, 1, 2),
-                 feasibility_weight=w, **nets)
-        late[w] = df[df.episode >= 150].success.mean()
-    assert late[0.0] <= 0.05 and late[1000.0] >= 0.25, late
+def test_ddpg_with_a_separable_critic_does_not_learn(tmp_path):
+    """The negative control of the check above: the old critic Q = V(s) + A(a) (dQ/da the same in
+    every state), everything else equal, reaches few of its static targets (measured: see docs)."""
+    df = run(tmp_path, "ddpg", "static_target", episodes=300, seeds=(0, 1, 2), critic_form="separable",
+             **PAPER_NETS)
+    assert late_success(df).mean() <= 0.5, late_success(df).tolist()
+
+
+@pytest.mark.slow
+def test_ddpg_learns_changing_targets(tmp_path):
+    """DDPG on changing_target (the paper: ~80%, lower than on a static target): 3 seeds x 300 episodes,
+    the paper's 400-300 / 400-600 networks, minibatch 64; the last 50 episodes reach >= 50% pooled
+    (measured: see docs/paper-mapping.md), far above its first 50."""
+    df = run(tmp_path, "ddpg", "changing_target", episodes=300, seeds=(0, 1, 2), **PAPER_NETS)
+    first = df[df.episode < 50].success.mean()
+    assert late_success(df).mean() >= 0.5 and late_success(df).mean() >= first + 0.3, (first, late_success(df).tolist())
