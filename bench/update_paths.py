@@ -9,11 +9,15 @@ inverse model and target networks, four ``torch.optim.Adam``, the same losses,
 and a Python loop over the members. Both run the paper's sizes (minibatch 500,
 replay 1000) on the same replay contents.
 
+The rest of a training step (arbitrated proposals + OU noise, the forward
+model's prediction, delta, MuJoCo servo step, replay store: ``rollout.agent_step``
+on a real ``VecEnv`` of ``changing_target``) is timed in the same rounds, so the
+whole step per seed is ``rest + update`` for either path.
+
 Cases are timed round-robin in several rounds (the machine is shared: load hits
-all alike), keeping each case's fastest round. Printed: ms per update per seed,
-and the ratio plain / agent measured in the same run (> 1: the agent is faster).
-With ``--step`` it also times whole training steps of the real loop
-(act + env + store + update, :mod:`bench.train_step`) for the agent's path.
+all alike), keeping each case's fastest round. Printed: ms per seed of the
+update and of the whole step, and the ratios plain / agent measured in the
+same run (> 1: the agent's path is faster).
 
     .venv/bin/python bench/update_paths.py [--cases fp32:1 bf16:10] [--rounds 5] [--updates 5] [--threads 1]
 """
@@ -90,8 +94,32 @@ class PlainMember:
                 torch._foreach_lerp_(list(tnet.parameters()), list(net.parameters()), cfg.tau)
 
 
+def rest_of_step(agent: Agent):
+    """One training step without the update: act, predict, step the plant, delta, store."""
+    import numpy as np
+
+    from apac_mj.arbitrator import Arbitrator
+    from apac_mj.rollout import agent_step, observed_state
+    from apac_mj.vec_env import VecEnv
+
+    E = agent.E
+    env, arbitrator = VecEnv("changing_target", list(range(E))), Arbitrator(agent.cfg)
+    active = np.ones(E, dtype=bool)
+    state = {"s": observed_state(env.reset(), agent.device), "t": np.zeros(E, dtype=np.int64)}
+
+    def step() -> None:
+        if env.obs.last.any() or state["t"][0] >= 29:
+            state["s"], state["t"][:] = observed_state(env.reset(), agent.device), 0
+        info = agent_step(agent, arbitrator, env, state["s"], np.full(E, 200), state["t"], np.zeros(E), active)
+        agent.replay.add(torch.as_tensor(info.state), torch.as_tensor(info.action), torch.as_tensor(info.reward),
+                         torch.as_tensor(info.next_state), torch.as_tensor(info.terminal, dtype=torch.float32),
+                         torch.as_tensor(active))
+        state["s"], state["t"] = torch.as_tensor(info.next_state), state["t"] + 1
+    return step
+
+
 def timers(precision: str, E: int):
-    """(agent update, plain update) callables for one case."""
+    """(agent update, plain update, rest of the step) callables for one case."""
     agent = filled_agent(E, precision)
     plain = [PlainMember(agent.cfg) for _ in range(E)]
     autocast = (lambda: torch.autocast("cpu", dtype=torch.bfloat16)) if precision == "bf16" else contextlib.nullcontext
@@ -104,7 +132,7 @@ def timers(precision: str, E: int):
         b = agent.replay.sample(agent.cfg.batch_size, list(range(E)))
         for k, member in enumerate(plain):
             member.update(b, k, autocast)
-    return agent_update, plain_update
+    return agent_update, plain_update, rest_of_step(filled_agent(E, precision))
 
 
 def best_ms_per_seed(fn, E: int, updates: int) -> float:
@@ -124,21 +152,24 @@ def main() -> None:
     torch.set_num_threads(args.threads)
     cases = [(c.split(":")[0], int(c.split(":")[1])) for c in args.cases]
     fns = {c: timers(*c) for c in cases}
-    best = {(c, path): float("inf") for c in cases for path in ("agent", "plain")}
+    paths = ("agent", "plain", "rest")
+    best = {(c, path): float("inf") for c in cases for path in paths}
     for fn_pair in fns.values():  # warm-up
         for fn in fn_pair:
             fn()
     for _ in range(args.rounds):
         for c in cases:
-            for path, fn in zip(("agent", "plain"), fns[c]):
+            for path, fn in zip(paths, fns[c]):
                 best[(c, path)] = min(best[(c, path)], best_ms_per_seed(fn, c[1], args.updates))
     ref = best[(("fp32", 1), "agent")] if ("fp32", 1) in cases else None
     print(f"torch {torch.__version__}, {args.threads} thread(s); paper sizes, minibatch 500; best of {args.rounds} rounds")
-    print(f"{'case':10s} {'agent ms/seed':>14s} {'plain ms/seed':>14s} {'plain/agent':>12s} {'agent vs fp32 E=1':>18s}")
+    print(f"{'case':10s} {'update ms/seed: agent':>22s} {'plain':>7s} {'plain/agent':>12s} "
+          f"{'step ms/seed: agent':>20s} {'plain':>7s} {'plain/agent':>12s} {'agent step vs fp32 E=1':>23s}")
     for c in cases:
-        a, pl = best[(c, "agent")], best[(c, "plain")]
-        rel = f"{a / ref:18.2f}" if ref else f"{'-':>18s}"
-        print(f"{c[0] + ' E=' + str(c[1]):10s} {a:14.2f} {pl:14.2f} {pl / a:12.2f} {rel}")
+        a, pl, rest = best[(c, "agent")], best[(c, "plain")], best[(c, "rest")]
+        sa, sp = a + rest, pl + rest
+        rel = f"{sa / (ref + best[(('fp32', 1), 'rest')]):23.2f}" if ref else f"{'-':>23s}"
+        print(f"{c[0] + ' E=' + str(c[1]):10s} {a:22.2f} {pl:7.2f} {pl / a:12.2f} {sa:20.2f} {sp:7.2f} {sp / sa:12.2f} {rel}")
 
 
 if __name__ == "__main__":
