@@ -25,6 +25,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from apac_mj import kinds
 from apac_mj.buffer import EnsembleReplay
 from apac_mj.config import AgentConfig
 from apac_mj.kinematics import Geometry
@@ -62,8 +63,9 @@ class Agent:
         self.cfg, self.seeds, self.precision = cfg, [int(s) for s in seeds], precision
         self.geometry = geometry or Geometry()
         self.E = len(self.seeds)
-        #: Habit formation from planning acts in APAC only: DDPG has no planner to learn from, SPAC no habit.
-        self._distill = cfg.habit_distillation_weight if cfg.agent == "apac" else 0.0
+        #: Habit formation from planning acts only in kinds that arbitrate: without a planner there is
+        #: nothing to learn from (DDPG), without a habit nothing learns (SPAC).
+        self._distill = cfg.habit_distillation_weight if kinds.get(cfg.agent).arbitrates else 0.0
         gens = [member_generators(s) for s in self.seeds]
         init = [g[0] for g in gens]
         self.actor = build_actor(cfg.actor_hidden, init).to(self.device)

@@ -8,16 +8,16 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-AGENTS = ("ddpg", "spac", "apac")
+from apac_mj import kinds
 
 
 @dataclasses.dataclass
 class AgentConfig:
     """The agent: habit system (DDPG), planning system, arbitrator, integrator."""
 
-    #: Which controller acts: "ddpg" (always the actor), "spac" (always the
-    #: inverse model) or "apac" (the arbitrator decides).
-    agent: str = "apac"
+    #: The agent kind (apac_mj.kinds: its arbitrator decides which controller acts): ddpg (always
+    #: the actor), spac (always the inverse model), apac (the arbitrator decides) or a registered one.
+    agent: str = kinds.DEFAULT
 
     # -- networks (Table 2) --------------------------------------------------
     #: Actor hidden layers (relu); output 2 x tanh x action_scale.
@@ -122,8 +122,7 @@ class AgentConfig:
         return self.ou_sigma_initial + frac * (self.ou_sigma - self.ou_sigma_initial)
 
     def __post_init__(self) -> None:
-        if self.agent not in AGENTS:
-            raise ValueError(f"agent must be one of {AGENTS}, got {self.agent!r}")
+        kinds.get(self.agent)  # an unknown kind: an error listing the registered ones
         for name in ("actor_lr", "critic_lr", "forward_lr", "inverse_lr", "tau", "gamma"):
             v = getattr(self, name)
             if not (0 < v <= 1):

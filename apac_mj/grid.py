@@ -30,8 +30,8 @@ from typing import Any
 
 import pandas as pd
 
-from apac_mj import paths
-from apac_mj.config import AGENTS, AgentConfig, TrainConfig, to_dict, train_config_from_dict
+from apac_mj import kinds, paths
+from apac_mj.config import AgentConfig, TrainConfig, to_dict, train_config_from_dict
 
 #: The paper's four training conditions (task files in tasks/).
 CONDITIONS = (
@@ -40,8 +40,6 @@ CONDITIONS = (
     "changing_target",
     "changing_target_changing_kinematics",
 )
-#: Agents that have an internal model and so can act under occluded vision.
-OCCLUDED_AGENTS = ("spac", "apac")
 TRAIN_REGION_SUFFIX = "_train_region"
 CELL_FILE = "cell.json"
 MANIFEST = "manifest.json"
@@ -73,8 +71,8 @@ class Preset:
 
     name: str
     description: str = ""
-    #: Agents: any of "ddpg", "spac", "apac".
-    agents: tuple[str, ...] = AGENTS
+    #: Agent kinds (apac_mj.kinds): the paper's ddpg, spac, apac or any registered one.
+    agents: tuple[str, ...] = kinds.BUILTIN
     #: Training conditions: task names without the "_train_region"/"_occluded" suffixes.
     conditions: tuple[str, ...] = CONDITIONS
     #: Seeds of every cell (all trained side by side as one ensemble).
@@ -94,7 +92,7 @@ class Preset:
     agent: dict[str, Any] = dataclasses.field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        _check_subset(self.name, "agents", self.agents, AGENTS)
+        _check_subset(self.name, "agents", self.agents, kinds.names())
         _check_subset(self.name, "conditions", self.conditions, CONDITIONS)
         _check_subset(self.name, "tests.generalization_conditions", self.tests.generalization_conditions, CONDITIONS)
         if not self.seeds or len(set(self.seeds)) != len(self.seeds) or min(self.seeds) < 0:
@@ -280,7 +278,7 @@ def cells(preset: Preset) -> list[Cell]:
     for condition in preset.conditions:
         for agent in preset.agents:
             protocols = ("grid",) if preset.tests.grid else ()
-            if preset.tests.occluded and agent in OCCLUDED_AGENTS:
+            if preset.tests.occluded and kinds.get(agent).acts_occluded:
                 protocols += ("occluded",)
             out.append(Cell(agent, condition, "all", protocols))
     if preset.tests.generalization:

@@ -17,7 +17,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import textwrap
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 
 import matplotlib
@@ -28,11 +28,29 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 from scipy import stats  # noqa: E402
 
+from apac_mj import kinds  # noqa: E402
 from apac_mj.grid import CONDITIONS, MANIFEST, load_results, load_tests, read_json  # noqa: E402
 
-AGENT_ORDER = ("ddpg", "spac", "apac")
-AGENT_LABEL = {"ddpg": "DDPG", "spac": "SPAC", "apac": "APAC"}
-AGENT_COLOR = {"ddpg": "tab:orange", "spac": "tab:green", "apac": "tab:blue"}
+
+
+class _KindView(Mapping):
+    """A live read-only view ``kind name -> AgentKind.<attr>`` of the registry (apac_mj.kinds)."""
+
+    def __init__(self, attr: str) -> None:
+        self.attr = attr
+
+    def __getitem__(self, name: str) -> str:
+        return getattr(kinds.get(name), self.attr)
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(kinds.names())
+
+    def __len__(self) -> int:
+        return len(kinds.names())
+
+
+#: Figure and table labels and colours of the agent kinds, read from the registry.
+AGENT_LABEL, AGENT_COLOR = _KindView("label"), _KindView("color")
 #: The paper's abbreviations (Fig. 4): target / kinematics, s = static, c = changing.
 COND_SHORT = {"static_target": "ss", "static_target_changing_kinematics": "sc",
               "changing_target": "cs", "changing_target_changing_kinematics": "cc"}
@@ -205,8 +223,8 @@ def per_seed(metrics: pd.DataFrame, tests: pd.DataFrame) -> pd.DataFrame:
     rows.append(_rate("train_success_late", g["success"]))
     rows.append(_q("steps_late", g["steps"].mean(), g.size()))
     rows.append(_q("time_late", g["time"].mean(), g.size()))
-    apac = lt[lt["agent"] == "apac"].groupby(keys)
-    habit, actions = apac["habit_actions"].sum(), apac["habit_actions"].sum() + apac["planning_actions"].sum()
+    arb = lt[lt["agent"].isin(_arbitrating(lt))].groupby(keys)
+    habit, actions = arb["habit_actions"].sum(), arb["habit_actions"].sum() + arb["planning_actions"].sum()
     rows.append(_q("habit_fraction_late", 100 * habit / actions, actions, k=habit))
     if not tests.empty:
         grid_tests = tests[tests["protocol"] == "grid"]
@@ -280,21 +298,27 @@ def key_numbers(seed_values: pd.DataFrame) -> pd.DataFrame:
     df = pd.DataFrame(out)
     order = {q: i for i, q in enumerate(QUANTITIES)}
     df["_o"] = df["quantity"].map(order) * 1000 + df["condition"].map(_rank(CONDITIONS)) * 10 \
-        + df["agent"].map(_rank(AGENT_ORDER))
+        + df["agent"].map(_rank(kinds.names()))
     return df.sort_values("_o").drop(columns="_o").reset_index(drop=True)
 
 
 def differences(seed_values: pd.DataFrame) -> pd.DataFrame:
-    """Intervals of the key differences, per condition: APAC - SPAC training and test success, and
-    APAC's habit share in each condition minus its share on the static target (percentage points)."""
+    """Intervals of the key differences, per condition: each arbitrating kind (APAC) - each planning-only
+    kind (SPAC) training and test success, and each arbitrating kind's habit share in each condition
+    minus its share on the static target (percentage points)."""
     def rows(q: str, agent: str, cond: str) -> pd.DataFrame:
         sel = seed_values[(seed_values["quantity"] == q) & (seed_values["agent"] == agent)
                           & (seed_values["condition"] == cond)]
         return sel.set_index("seed")
 
     conds = [c for c in CONDITIONS if c in set(seed_values["condition"])]
-    pairs = [(q, ("apac", c), ("spac", c)) for q in ("train_success_late", "test_success") for c in conds]
-    pairs += [("habit_fraction_late", ("apac", c), ("apac", "static_target")) for c in conds if c != "static_target"]
+    present = [a for a in kinds.names() if a in set(seed_values["agent"])]
+    arbitrating = [a for a in present if kinds.get(a).arbitrates]
+    planning = [a for a in present if not kinds.get(a).uses_habit]
+    pairs = [(q, (a, c), (b, c)) for q in ("train_success_late", "test_success") for c in conds
+             for a in arbitrating for b in planning]
+    pairs += [("habit_fraction_late", (a, c), (a, "static_target")) for c in conds if c != "static_target"
+              for a in arbitrating]
     out = []
     for q, (a1, c1), (a2, c2) in pairs:
         ra, rb = rows(q, a1, c1), rows(q, a2, c2)
@@ -321,7 +345,23 @@ def _rank(order: Sequence[str]) -> dict[str, int]:
 # -- figures -------------------------------------------------------------------------
 
 def _agents(df: pd.DataFrame) -> list[str]:
-    return [a for a in AGENT_ORDER if a in set(df["agent"])]
+    """The registered kinds present in ``df``, in registry order; an unregistered one is an error."""
+    check_kinds(df)
+    return [a for a in kinds.names() if a in set(df["agent"])]
+
+
+def _arbitrating(df: pd.DataFrame) -> list[str]:
+    """The kinds in ``df`` whose arbitrator chooses between habit and planning (APAC)."""
+    return [a for a in _agents(df) if kinds.get(a).arbitrates]
+
+
+def check_kinds(df: pd.DataFrame) -> None:
+    """Every agent kind in the results is registered (else it would vanish from the figures)."""
+    unknown = sorted(set(df["agent"]) - set(kinds.names()))
+    if unknown:
+        raise kinds.UnknownKindError(
+            f"the results hold agent kind(s) {unknown} that are not registered (registered: "
+            f"{', '.join(kinds.names())}); register them with apac_mj.kinds.register before reporting")
 
 
 def _conditions(df: pd.DataFrame) -> list[str]:
@@ -503,20 +543,26 @@ def fig_test(table: pd.DataFrame, seed_values: pd.DataFrame, path: Path) -> Path
 
 
 def fig_arbitration(metrics: pd.DataFrame, path: Path) -> Path:
-    """Fig. 5: APAC's habitual vs planning actions per episode, per condition."""
-    apac = metrics[(metrics["agent"] == "apac") & (metrics["phase"] == "train") & (metrics["region"] == "all")]
-    conds, w = _conditions(apac), _window(apac)
-    axes = _axes(1, max(len(conds), 1))
-    for j, cond in enumerate(conds):
-        sel = apac[apac["condition"] == cond]
-        _line(axes[0, j], sel, "habit_actions", w, "habitual (actor)", "tab:blue")
-        _line(axes[0, j], sel, "planning_actions", w, "planning (inverse model)", "tab:red")
-        _style(axes[0, j], COND_LABEL[cond], "training episode", "actions per episode")
+    """Fig. 5: habitual vs planning actions per episode, per condition (one row per arbitrating kind: APAC)."""
+    main = metrics[(metrics["phase"] == "train") & (metrics["region"] == "all")]
+    arbitrating = _arbitrating(main)
+    sel_all = main[main["agent"].isin(arbitrating)]
+    conds, w = _conditions(sel_all), _window(sel_all)
+    axes = _axes(max(len(arbitrating), 1), max(len(conds), 1))
+    for i, agent in enumerate(arbitrating):
+        for j, cond in enumerate(conds):
+            sel = sel_all[(sel_all["agent"] == agent) & (sel_all["condition"] == cond)]
+            _line(axes[i, j], sel, "habit_actions", w, "habitual (actor)", "tab:blue")
+            _line(axes[i, j], sel, "planning_actions", w, "planning (inverse model)", "tab:red")
+            title = COND_LABEL[cond] if len(arbitrating) == 1 else f"{AGENT_LABEL[agent]}, {COND_LABEL[cond]}"
+            _style(axes[i, j], title, "training episode", "actions per episode")
     if not conds:
-        axes[0, 0].text(0.5, 0.5, "no APAC cell in these results", ha="center", transform=axes[0, 0].transAxes)
-        _style(axes[0, 0], "APAC", "training episode", "actions per episode")
-    return _save(axes[0, 0].figure, path, f"Fig. 5: APAC arbitration (moving average over {_episodes(w)}; "
-                                          f"bold: mean over seeds, {_band_words(apac)})")
+        axes[0, 0].text(0.5, 0.5, "no arbitrating agent in these results", ha="center",
+                        transform=axes[0, 0].transAxes)
+        _style(axes[0, 0], "arbitration", "training episode", "actions per episode")
+    names = ", ".join(AGENT_LABEL[a] for a in arbitrating) or "APAC"
+    return _save(axes[0, 0].figure, path, f"Fig. 5: {names} arbitration (moving average over {_episodes(w)}; "
+                                          f"bold: mean over seeds, {_band_words(sel_all)})")
 
 
 def fig_steps_time(metrics: pd.DataFrame, path: Path) -> Path:
@@ -647,6 +693,7 @@ def write_report(results: str | Path, out: str | Path | None = None, title: str 
     differences.csv and report.md; returns the directory."""
     results = Path(results)
     metrics, tests = load_results(results), load_tests(results)
+    check_kinds(metrics)  # before anything is written
     out = Path(out) if out else results / "report"
     out.mkdir(parents=True, exist_ok=True)
     seed_values = per_seed(metrics, tests)
@@ -660,7 +707,7 @@ def write_report(results: str | Path, out: str | Path | None = None, title: str 
         Figure("fig4_test.png", "Test success rate and steps to reach (paper Fig. 4).",
                lambda: fig_test(table, seed_values, out / "fig4_test.png"), "grid" in protocols),
         Figure("fig5_arbitration.png", "APAC habitual vs planning actions per episode (paper Fig. 5).",
-               lambda: fig_arbitration(metrics, out / "fig5_arbitration.png"), "apac" in set(metrics["agent"])),
+               lambda: fig_arbitration(metrics, out / "fig5_arbitration.png"), bool(_arbitrating(metrics))),
         Figure("fig6_steps_time.png", "Action steps and time per episode, planning = 3x habit (paper Fig. 6).",
                lambda: fig_steps_time(metrics, out / "fig6_steps_time.png")),
         Figure("fig7_trajectories.png", "Reaching trajectories to the test targets (paper Fig. 7).",

@@ -25,7 +25,7 @@ warning, to checkpoints/previous.pt. Everything is checked before the directory 
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from apac_mj.config import AGENTS
+    from apac_mj import kinds
 
     p = sub.add_parser("train", help="train an ensemble of seeds on a task (resumable run directory)",
                        description="Train DDPG, SPAC or APAC on one task, every seed as an independent member of "
@@ -34,8 +34,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "share over the last 20 episodes of all seeds).",
                        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--task", default="changing_target", help="task name (a file in tasks/; see apac-mj tasks)")
-    p.add_argument("--agent", choices=AGENTS, default="apac",
-                   help="ddpg: always the actor; spac: always the inverse model; apac: the arbitrator decides")
+    p.add_argument("--agent", choices=kinds.names(), default=kinds.DEFAULT,
+                   help="agent kind (apac_mj.kinds): ddpg: always the actor; spac: always the inverse model; "
+                        "apac: the arbitrator decides (default); or a registered one")
     p.add_argument("--seeds", default="0", help="seeds: a range '0-9' (inclusive), a list '0,3,5' or one seed")
     p.add_argument("--episodes", type=int, default=1000, help="training episodes per seed (default 1000)")
     p.add_argument("--out", required=True, help="run directory (created; an existing one is resumed)")
