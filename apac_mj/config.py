@@ -39,8 +39,9 @@ class AgentConfig:
     inverse_hidden: tuple[int, int] = (400, 300)
     #: Scale of the actor's and the inverse model's tanh outputs (degrees).
     action_scale: float = 180.0
-    #: Scale of the forward model's sigmoid output (cm, the plane's size).
-    plane_scale: float = 30.0
+    #: Scale of the forward model's sigmoid output (cm): the task's plane size (the Agent reads it from
+    #: the task's geometry); a number here must equal it (None: take the task's, whatever it is).
+    plane_scale: float | None = 30.0
 
     # -- optimisation (Table 2; Adam everywhere) -----------------------------
     actor_lr: float = 1e-4

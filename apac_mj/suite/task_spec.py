@@ -17,6 +17,10 @@ from typing import Any
 from apac_mj import paths
 
 
+#: The arm's (shoulder, elbow) angles at every episode's start (degrees): stretched along the x axis, folded back.
+START_ANGLES = (0.0, 180.0)
+
+
 class TaskSpecError(ValueError):
     """A task file (or task override) is malformed."""
 
@@ -61,7 +65,10 @@ class TaskSpec:
     growth_start_episode: int = 100
     #: "perfect" or "occluded" (target and arm seen at the first step only).
     vision: str = "perfect"
-    #: What the plant does with a command past a joint limit (both joints move in [0, 180] degrees):
+    #: (low, high) of both joints in degrees (the paper: "each joint only moves between 0 to 180 degrees");
+    #: it must hold the start pose ``START_ANGLES`` (0, 180).
+    joint_range: tuple[float, float] = (0.0, 180.0)
+    #: What the plant does with a command past a joint limit (``joint_range``):
     #: "clip" (the paper: "each joint only moves between 0 to 180 degrees"; the part past the limit
     #: is lost) or "unbounded" (no limit: the angles go on, as the motion function itself allows).
     at_limit: str = "clip"
@@ -91,6 +98,11 @@ class TaskSpec:
             raise TaskSpecError(f"task {self.name!r}: growth_start_episode must be >= 0")
         if self.steps_per_episode < 1:
             raise TaskSpecError(f"task {self.name!r}: steps_per_episode must be >= 1")
+        lo, hi = self.joint_range
+        if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+            raise TaskSpecError(f"task {self.name!r}: joint_range must be finite with low < high, got {self.joint_range}")
+        if not all(lo <= a <= hi for a in START_ANGLES):
+            raise TaskSpecError(f"task {self.name!r}: joint_range {self.joint_range} must hold the start pose {START_ANGLES}")
         ox, oy = self.origin
         if not (0 <= ox <= self.plane_size[0] and 0 <= oy <= self.plane_size[1]):
             raise TaskSpecError(f"task {self.name!r}: origin {self.origin} lies outside the plane {self.plane_size}")
@@ -128,12 +140,12 @@ _LAYOUT: dict[str, dict[str, str]] = {
         "growth_start_episode": "growth_start_episode",
     },
     "vision": {"mode": "vision"},
-    "joints": {"at_limit": "at_limit"},
+    "joints": {"range": "joint_range", "at_limit": "at_limit"},
     "episode": {"steps": "steps_per_episode"},
     "plane": {"size": "plane_size", "origin": "origin"},
     "region": {"test_y_min": "region"},
 }
-_PAIRS = {"link_lengths", "plane_size", "origin"}
+_PAIRS = {"link_lengths", "plane_size", "origin", "joint_range"}
 _FLOATS = {"zone_radius", "growth_per_step"}
 _INTS = {"growth_start_episode", "steps_per_episode"}
 
