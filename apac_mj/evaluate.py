@@ -24,7 +24,6 @@ target) and ``eval/summary.json``; returns the summary.
 """
 from __future__ import annotations
 
-import io
 import json
 from pathlib import Path
 from typing import Any, Sequence
@@ -37,6 +36,7 @@ from tqdm.auto import tqdm
 from apac_mj import checkpoint
 from apac_mj.agent import Agent
 from apac_mj.config import TrainConfig, task_spec, train_config_from_dict
+from apac_mj.files import atomic_write_parquet
 from apac_mj.kinematics import Geometry, angle_grid, motion_function
 from apac_mj.kinds import arbitrator_for, get as get_kind
 from apac_mj.rollout import EpisodeLoop, OnEpisodeStart, OnStep
@@ -75,7 +75,7 @@ def load_run(run_dir: Path, device: str | None = None) -> tuple[TrainConfig, Age
 
 def not_a_run_dir(path: Path, command: str) -> str:
     """Why ``path`` is not a run directory; for a grid's results directory, its cells to choose from."""
-    from apac_mj.grid import CELL_FILE
+    from apac_mj.results import CELL_FILE
 
     path = Path(path)
     if not path.is_dir():
@@ -131,7 +131,7 @@ def evaluate(run_dir: str | Path, protocols: Sequence[str] = ("grid", "occluded"
         df = pd.DataFrame(rows)
         if protocol == "occluded":
             df = df.drop(columns=["path_x", "path_y"])
-        _write_parquet(run_dir / "eval" / f"{protocol}.parquet", df)
+        atomic_write_parquet(run_dir / "eval" / f"{protocol}.parquet", df)
         summary.setdefault("protocols", {})[protocol] = summarize(df, spec.zone_radius)
     text = json.dumps(summary, indent=2) + "\n"
     checkpoint.atomic_write_bytes(run_dir / "eval" / "summary.json", lambda f: f.write(text.encode()))
@@ -261,7 +261,3 @@ def _read_summary(run_dir: Path) -> dict[str, Any]:
     return json.loads(path.read_text()) if path.is_file() else {}
 
 
-def _write_parquet(path: Path, df: pd.DataFrame) -> None:
-    buf = io.BytesIO()
-    df.to_parquet(buf, index=False)
-    checkpoint.atomic_write_bytes(path, lambda f: f.write(buf.getvalue()))

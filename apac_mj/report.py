@@ -29,7 +29,9 @@ import pandas as pd  # noqa: E402
 from scipy import stats  # noqa: E402
 
 from apac_mj import kinds  # noqa: E402
-from apac_mj.grid import CONDITIONS, MANIFEST, load_results, load_tests, read_json  # noqa: E402
+from apac_mj.files import read_json  # noqa: E402
+from apac_mj.presets import CONDITIONS  # noqa: E402
+from apac_mj.results import MANIFEST, load_results, load_tests  # noqa: E402
 
 
 

@@ -45,7 +45,6 @@ from __future__ import annotations
 
 import collections
 import dataclasses
-import io
 import json
 import subprocess
 import sys
@@ -60,6 +59,7 @@ from tqdm.auto import tqdm
 from apac_mj import checkpoint
 from apac_mj.agent import Agent
 from apac_mj.config import TrainConfig, task_spec, to_dict
+from apac_mj.files import atomic_write_parquet
 from apac_mj.kinds import arbitrator_for
 from apac_mj.kinematics import Geometry
 from apac_mj.rollout import EpisodeLoop, EpisodeState, OnEpisodeStart, OnStep, StepInfo
@@ -415,10 +415,7 @@ def check_device(device: str) -> None:
 
 def write_metrics(path: Path, rows: list[dict[str, Any]]) -> None:
     """Atomically write the metric rows as parquet (columns: METRIC_COLUMNS)."""
-    df = pd.DataFrame(rows, columns=list(METRIC_COLUMNS))
-    buf = io.BytesIO()
-    df.to_parquet(buf, index=False)
-    checkpoint.atomic_write_bytes(path, lambda f: f.write(buf.getvalue()))
+    atomic_write_parquet(path, pd.DataFrame(rows, columns=list(METRIC_COLUMNS)))
 
 
 def _save(out_dir: Path, config: dict[str, Any], loop: LoopState, agent: Agent, env: VecEnv,
