@@ -26,11 +26,11 @@ from pathlib import Path
 from typing import Any
 
 from apac_mj import kinds
+from apac_mj.config import TrainConfig, to_dict, train_config_from_dict
 from apac_mj.executors import LocalExecutor
-from apac_mj.config import AgentConfig, TrainConfig, to_dict, train_config_from_dict
 from apac_mj.files import atomic_write_text, jsonable as _jsonable, read_json
-from apac_mj.presets import (CONDITIONS, Preset, PresetError, Tests, _tuples, load_preset,  # noqa: F401
-                             parse_override, parse_seeds, preset_from_dict, preset_names, preset_path)
+from apac_mj.presets import (CONDITIONS, Preset, PresetError, Tests, load_preset, parse_override,  # noqa: F401
+                             parse_seeds, preset_from_dict, preset_names, preset_path)
 from apac_mj.results import CELL_FILE, MANIFEST, cell_dirs, load_results, load_tests  # noqa: F401
 
 TRAIN_REGION_SUFFIX = "_train_region"
@@ -57,13 +57,8 @@ class Cell:
         return f"{self.agent}__{self.task}"
 
     def train_config(self, preset: Preset) -> TrainConfig:
-        agent = AgentConfig(agent=self.agent, **_tuples(preset.agent))
-        return TrainConfig(task=self.task, seeds=preset.seeds, episodes=preset.episodes, device=preset.device,
-                           precision=preset.precision, checkpoint_every=preset.checkpoint_every,
-                           actuation=preset.actuation, agent=agent)
+        return preset.train_config(self.task, self.agent)
 
-
-# -- cells ---------------------------------------------------------------------------
 
 def cells(preset: Preset) -> list[Cell]:
     """The grid's cells: main study first (agent-major), then the generalization study."""
@@ -137,10 +132,11 @@ def prepare_cell(cell: Cell, preset: Preset, results: Path) -> Path:
 
 
 def check_grid(preset: Preset, results: Path) -> dict[str, tuple[str, str]]:
-    """Every cell's status; raises ValueError naming every refused cell (nothing is written)."""
-    from apac_mj.trainer import check_device
+    """Every cell's status; raises ValueError naming every refused cell or invalid run (nothing is written)."""
+    from apac_mj.trainer import validate
 
-    check_device(preset.device)
+    for c in cells(preset):
+        validate(c.train_config(preset))  # devices, seeds, the task and its overrides: before anything runs
     statuses = {c.name: cell_status(c, preset, Path(results)) for c in cells(preset)}
     refused = [why for status, why in statuses.values() if status == "refused"]
     if refused:

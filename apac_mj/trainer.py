@@ -326,7 +326,7 @@ def _prepare_run_dir(cfg: TrainConfig, out_dir: Path) -> tuple[dict[str, Any], i
     Returns the config and the episode count of the run already there (None: a new run). The same
     config with more episodes extends a run; any other difference is refused.
     """
-    _validate(cfg)
+    validate(cfg)
     config = config_dict(cfg)
     path = out_dir / "config.json"
     if not path.is_file():
@@ -379,7 +379,8 @@ def _diff(old: dict[str, Any], new: dict[str, Any], prefix: str = "") -> list[st
     return out
 
 
-def _validate(cfg: TrainConfig) -> None:
+def validate(cfg: TrainConfig) -> None:
+    """Refuse a run configuration that cannot run here (a ValueError naming the field); writes nothing."""
     if not cfg.seeds:
         raise ValueError("at least one seed is needed")
     if any(not isinstance(s, (int, np.integer)) or s < 0 for s in cfg.seeds) or len(set(cfg.seeds)) != len(cfg.seeds):

@@ -24,7 +24,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--preset", default="demo", help="preset name or .toml path (default: demo)")
     p.add_argument("--out", default="results/demo", help="results directory (default: results/demo)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a preset field, repeatable (e.g. seeds=3, episodes=300)")
+                   help="override a preset field, repeatable (the grammar of grid --set, fields listed in "
+                        "apac-mj grid --help; e.g. seeds=3, episodes=300)")
     p.add_argument("--record-episodes", type=int, default=3,
                    help="episodes of the trained APAC to record (default 3; 0 = no recording)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
