@@ -11,6 +11,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "fraction of the reachable area in the test region and how many of the 100 "
                                    "angle-grid test targets fall in it.")
     p.add_argument("--regions", action="store_true", help="measure the test region of each task (a few seconds)")
+    p.add_argument("--show", metavar="NAME", default=None,
+                   help="print every value of task NAME (its file states only what differs from the defaults)")
     p.set_defaults(func=run)
 
 
@@ -18,6 +20,20 @@ def run(args: argparse.Namespace) -> int:
     from apac_mj.suite.regions import region_stats
     from apac_mj.suite.task_spec import load_task, task_names
 
+    if args.show is not None:
+        print(describe_task(load_task(args.show)))
+        return 0
+
+
+def describe_task(spec) -> str:
+    """Every field of a TaskSpec, one ``name = value`` line each, ``*`` marking those its file sets."""
+    import dataclasses
+
+    from apac_mj.suite.task_spec import TaskSpec
+
+    default = TaskSpec(name=spec.name)
+    return "\n".join(f"{'*' if getattr(spec, f.name) != getattr(default, f.name) else ' '} {f.name} = "
+                     f"{getattr(spec, f.name)!r}" for f in dataclasses.fields(spec) if f.name != "name")
     for name in task_names():
         s = load_task(name)
         line = (f"{name:48s} target={s.target_mode:8s} kinematics={s.kinematics_mode:8s} "
@@ -28,3 +44,14 @@ def run(args: argparse.Namespace) -> int:
                      f"{r.grid_targets_in_test}/{r.grid_targets} grid targets")
         print(line)
     return 0
+
+
+def describe_task(spec) -> str:
+    """Every field of a TaskSpec, one ``name = value`` line each, ``*`` marking those its file sets."""
+    import dataclasses
+
+    from apac_mj.suite.task_spec import TaskSpec
+
+    default = TaskSpec(name=spec.name)
+    return "\n".join(f"{'*' if getattr(spec, f.name) != getattr(default, f.name) else ' '} {f.name} = "
+                     f"{getattr(spec, f.name)!r}" for f in dataclasses.fields(spec) if f.name != "name")

@@ -1,10 +1,13 @@
 """Task conditions as data: TOML files in ``tasks/``, read and validated here.
 
-A task file states every condition of the paper's experiments (target
+A task file states one condition of the paper's experiments (target
 static/changing, kinematics static/changing, vision perfect/occluded, the
-generalization region) and the constants of the environment. Every key is
-checked: an unknown key or a bad value raises :class:`TaskSpecError` naming the
-file, the key and the problem. Users add a condition by adding a file.
+generalization region) as what differs from the defaults: the field defaults
+of :class:`TaskSpec`, the paper's values (its "Experimental Conditions and
+Environment" and Appendix 2 Table 1), documented below. ``apac-mj tasks --show
+NAME`` prints every value of a task. Every key is checked: an unknown key or a
+bad value raises :class:`TaskSpecError` naming the file, the key and the
+problem. Users add a condition by adding a file (docs/extending.md).
 """
 from __future__ import annotations
 
