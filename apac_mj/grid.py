@@ -29,11 +29,10 @@ from apac_mj import kinds
 from apac_mj.config import TrainConfig, to_dict, train_config_from_dict
 from apac_mj.executors import LocalExecutor
 from apac_mj.files import atomic_write_text, jsonable as _jsonable, read_json
-from apac_mj.presets import (CONDITIONS, Preset, PresetError, Tests, load_preset, parse_override,  # noqa: F401
-                             parse_seeds, preset_from_dict, preset_names, preset_path)
+from apac_mj.presets import (CONDITIONS, TRAIN_REGION_SUFFIX, Preset, PresetError, Tests,  # noqa: F401
+                             load_preset, parse_override, parse_seeds, preset_from_dict, preset_names, preset_path)
 from apac_mj.results import CELL_FILE, MANIFEST, cell_dirs, load_results, load_tests  # noqa: F401
 
-TRAIN_REGION_SUFFIX = "_train_region"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -41,7 +40,7 @@ class Cell:
     """One ensemble job: an agent trained on a task, then tested."""
 
     agent: str
-    #: The paper's training condition (one of CONDITIONS).
+    #: The training condition (a task; the paper's are CONDITIONS).
     condition: str
     #: "all" (the main study) or "train" (generalization: trained on the train region).
     region: str

@@ -29,6 +29,7 @@ CONDITIONS = (
     "changing_target",
     "changing_target_changing_kinematics",
 )
+TRAIN_REGION_SUFFIX = "_train_region"
 #: The TrainConfig fields a preset sets at its top level (the task is each cell's; ``agent`` is the [agent] table).
 RUN_FIELDS = ("seeds", "episodes", "checkpoint_every", "device", "precision", "actuation", "task_overrides")
 #: A preset's run configuration where the file says nothing: the paper's 50 seeds, TrainConfig's other defaults.
@@ -65,7 +66,8 @@ class Preset:
     description: str = ""
     #: Agent kinds (apac_mj.kinds): the paper's ddpg, spac, apac or any registered one.
     agents: tuple[str, ...] = kinds.BUILTIN
-    #: Training conditions: task names without the "_train_region"/"_occluded" suffixes.
+    #: Training conditions: the paper's four, or any task (file or registered) not ending in "_train_region"
+    #: or "_occluded".
     conditions: tuple[str, ...] = CONDITIONS
     #: Torch CPU threads per cell. 1 is fastest for these small networks: more threads than free cores
     #: spin at barriers and were 25x slower on a loaded 2-core machine.
@@ -78,8 +80,16 @@ class Preset:
 
     def __post_init__(self) -> None:
         _check_subset(self.name, "agents", self.agents, kinds.names())
-        _check_subset(self.name, "conditions", self.conditions, CONDITIONS)
-        _check_subset(self.name, "tests.generalization_conditions", self.tests.generalization_conditions, CONDITIONS)
+        _check_subset(self.name, "conditions", self.conditions, known_conditions())
+        _check_subset(self.name, "tests.generalization_conditions", self.tests.generalization_conditions,
+                      known_conditions())
+        if self.tests.generalization:
+            tasks = set(_task_names())
+            missing = [c for c in self.tests.generalization_conditions if c + TRAIN_REGION_SUFFIX not in tasks]
+            if missing:
+                raise PresetError(f"preset {self.name!r}: generalization needs a task "
+                                  f"'<condition>{TRAIN_REGION_SUFFIX}' for {missing}; add it or set "
+                                  "tests.generalization_conditions")
         if not isinstance(self.threads, int) or isinstance(self.threads, bool) or self.threads < 1:
             raise PresetError(f"preset {self.name!r}: threads must be an int >= 1, got {self.threads!r}")
 
@@ -95,6 +105,18 @@ class Preset:
         """The run of one cell: this preset's run on ``task`` with agent kind ``agent``."""
         run = copy.deepcopy(self.run)
         return dataclasses.replace(run, task=task, agent=dataclasses.replace(run.agent, agent=agent))
+
+
+def known_conditions() -> tuple[str, ...]:
+    """The paper's conditions first, then every other task that is not a variant (occluded, train region)."""
+    others = [t for t in _task_names() if t not in CONDITIONS and not t.endswith((TRAIN_REGION_SUFFIX, "_occluded"))]
+    return CONDITIONS + tuple(others)
+
+
+def _task_names() -> list[str]:
+    from apac_mj.suite.task_spec import task_names  # the environment layer, loaded when first needed
+
+    return task_names()
 
 
 # -- reading presets ------------------------------------------------------------

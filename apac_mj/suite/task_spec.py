@@ -207,15 +207,42 @@ def load_task_file(path: str | Path) -> TaskSpec:
     return parse_task(data, name=path.stem, source=str(path))
 
 
+#: Tasks added at run time by :func:`register_task` (name -> spec), beside the files in tasks/.
+_REGISTERED: dict[str, TaskSpec] = {}
+
+
+def register_task(task: TaskSpec | str | Path, replace: bool = False) -> TaskSpec:
+    """Add a task from user code: a :class:`TaskSpec` or the path of a task file (named by its stem).
+
+    It is then known by name everywhere a task file is (``suite.load``, ``TrainConfig.task``, grid
+    conditions), in this process; a name that is taken needs ``replace=True``."""
+    spec = task if isinstance(task, TaskSpec) else load_task_file(task)
+    if not replace and (spec.name in _REGISTERED or spec.name in task_names(paths.tasks_dir())):
+        raise TaskSpecError(f"task {spec.name!r} already exists (pass replace=True to redefine it)")
+    _REGISTERED[spec.name] = spec
+    return spec
+
+
+def unregister_task(name: str) -> None:
+    """Remove a task added by :func:`register_task`."""
+    if name not in _REGISTERED:
+        raise KeyError(f"task {name!r} was not registered at run time")
+    del _REGISTERED[name]
+
+
 def task_names(directory: Path | None = None) -> list[str]:
-    directory = directory or paths.tasks_dir()
-    return sorted(p.stem for p in directory.glob("*.toml"))
+    """The tasks in ``directory`` (default: tasks/ and those registered at run time)."""
+    if directory is not None:
+        return sorted(p.stem for p in directory.glob("*.toml"))
+    return sorted({p.stem for p in paths.tasks_dir().glob("*.toml")} | set(_REGISTERED))
 
 
 def load_task(name: str, directory: Path | None = None) -> TaskSpec:
-    """Load ``tasks/<name>.toml``; an unknown name lists the known ones."""
-    directory = directory or paths.tasks_dir()
-    path = directory / f"{name}.toml"
+    """Load ``tasks/<name>.toml`` (or a registered task); an unknown name lists the known ones."""
+    if directory is None and name in _REGISTERED:
+        return _REGISTERED[name]
+    where = directory or paths.tasks_dir()
+    path = where / f"{name}.toml"
     if not path.is_file():
         raise KeyError(f"unknown task {name!r}; known tasks: {', '.join(task_names(directory))}")
     return load_task_file(path)
