@@ -414,6 +414,25 @@ def check_device(device: str) -> None:
         raise ValueError(f"device {device!r}: this machine has {torch.cuda.device_count()} CUDA device(s)")
 
 
+def metric_rows(run_dir: str | Path) -> int:
+    """Rows in RUN_DIR/metrics.parquet (0 if none yet), read from the file's footer."""
+    import pyarrow.parquet as pq
+
+    path = Path(run_dir) / "metrics.parquet"
+    return pq.ParquetFile(path).metadata.num_rows if path.is_file() else 0
+
+
+def run_summary(run_dir: str | Path, last: int = 100) -> dict[str, Any]:
+    """Episodes, seeds, and the success rate and habit share over each seed's ``last`` training episodes."""
+    df = pd.read_parquet(Path(run_dir) / "metrics.parquet")
+    tr = df[df.phase == "train"]
+    late = tr[tr.episode >= tr.episode.max() - (last - 1)]
+    acts = late.habit_actions.sum() + late.planning_actions.sum()
+    return {"episodes": int(tr.episode.max()) + 1, "seeds": int(df.seed.nunique()),
+            f"success_rate_last_{last}": round(float(late.success.mean()), 4),
+            f"habit_share_last_{last}": round(float(late.habit_actions.sum() / max(1, acts)), 4)}
+
+
 def write_metrics(path: Path, rows: list[dict[str, Any]]) -> None:
     """Atomically write the metric rows as parquet (columns: METRIC_COLUMNS)."""
     atomic_write_parquet(path, pd.DataFrame(rows, columns=list(METRIC_COLUMNS)))

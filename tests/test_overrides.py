@@ -104,3 +104,10 @@ def test_field_docs_read_the_comments():
         b: str = "x"
 
     assert overrides.field_docs(Example) == {"a": "First line, second line.", "b": "(section: a section)"}
+
+
+def test_agent_overrides_for_scripts_use_the_same_grammar():
+    assert train_cmd.agent_overrides(["batch_size=64", "agent.actor_hidden=64,64"]) == {
+        "batch_size": 64, "actor_hidden": (64, 64)}
+    with pytest.raises(ValueError, match="unknown AgentConfig field"):
+        train_cmd.agent_overrides(["no_such=1"])

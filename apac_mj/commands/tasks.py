@@ -18,22 +18,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from apac_mj.suite.regions import region_stats
-    from apac_mj.suite.task_spec import load_task, task_names
+    from apac_mj.suite.task_spec import describe, load_task, task_names
 
     if args.show is not None:
-        print(describe_task(load_task(args.show)))
+        print(describe(load_task(args.show)))
         return 0
-
-
-def describe_task(spec) -> str:
-    """Every field of a TaskSpec, one ``name = value`` line each, ``*`` marking those its file sets."""
-    import dataclasses
-
-    from apac_mj.suite.task_spec import TaskSpec
-
-    default = TaskSpec(name=spec.name)
-    return "\n".join(f"{'*' if getattr(spec, f.name) != getattr(default, f.name) else ' '} {f.name} = "
-                     f"{getattr(spec, f.name)!r}" for f in dataclasses.fields(spec) if f.name != "name")
     for name in task_names():
         s = load_task(name)
         line = (f"{name:48s} target={s.target_mode:8s} kinematics={s.kinematics_mode:8s} "
@@ -44,14 +33,3 @@ def describe_task(spec) -> str:
                      f"{r.grid_targets_in_test}/{r.grid_targets} grid targets")
         print(line)
     return 0
-
-
-def describe_task(spec) -> str:
-    """Every field of a TaskSpec, one ``name = value`` line each, ``*`` marking those its file sets."""
-    import dataclasses
-
-    from apac_mj.suite.task_spec import TaskSpec
-
-    default = TaskSpec(name=spec.name)
-    return "\n".join(f"{'*' if getattr(spec, f.name) != getattr(default, f.name) else ' '} {f.name} = "
-                     f"{getattr(spec, f.name)!r}" for f in dataclasses.fields(spec) if f.name != "name")

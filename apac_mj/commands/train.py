@@ -73,6 +73,20 @@ def parse_seeds(text: str) -> tuple[int, ...]:
     return parse(text, "--seeds")
 
 
+def agent_overrides(items: list[str]) -> dict:
+    """``KEY=VALUE`` strings (``NAME`` or ``agent.NAME``) -> AgentConfig keyword arguments, in the one
+    --set grammar (apac_mj.overrides): typed by the field, an unknown name or a bad value refused."""
+    from apac_mj import overrides
+    from apac_mj.config import AgentConfig
+
+    fields = {f.name for f in dataclasses.fields(AgentConfig)} - {"agent"}
+    data = overrides.apply_sets({}, items, agent_fields=fields, top_level=())
+    stray = sorted(set(data) - {"agent"})
+    if stray:
+        raise overrides.OverrideError(f"--set: unknown AgentConfig field(s) {stray}; known: {', '.join(sorted(fields))}")
+    return overrides.typed_fields(AgentConfig, data.get("agent", {}), "--set agent.", skip=("agent",))
+
+
 def train_config(args: argparse.Namespace):
     """The run's TrainConfig: the flags, then every --set (one grammar, typed and checked here)."""
     from apac_mj import overrides
@@ -94,37 +108,17 @@ def train_config(args: argparse.Namespace):
 def run(args: argparse.Namespace) -> int:
     import torch
 
-    from apac_mj.trainer import train
+    from apac_mj.trainer import metric_rows, run_summary, train
 
     if args.threads < 1:
         raise ValueError(f"--threads must be >= 1, got {args.threads}")
     cfg = train_config(args)
     torch.set_num_threads(args.threads)
-    before = _metric_rows(args.out)
+    before = metric_rows(args.out)
     run_dir = train(cfg, args.out, progress=not args.no_progress, record_every=args.record_every)
-    _print_summary(run_dir, trained=_metric_rows(run_dir) != before)
-    return 0
-
-
-def _metric_rows(run_dir) -> int:
-    """Rows in RUN_DIR/metrics.parquet (0 if none yet), read from the file's footer."""
-    from pathlib import Path
-
-    import pyarrow.parquet as pq
-
-    path = Path(run_dir) / "metrics.parquet"
-    return pq.ParquetFile(path).metadata.num_rows if path.is_file() else 0
-
-
-def _print_summary(run_dir, trained: bool) -> None:
-    import pandas as pd
-
-    df = pd.read_parquet(run_dir / "metrics.parquet")
-    tr = df[df.phase == "train"]
-    last = tr[tr.episode >= tr.episode.max() - 99]
-    acts = last.habit_actions.sum() + last.planning_actions.sum()
-    print(json.dumps({"run_dir": str(run_dir), "status": "trained" if trained else "already finished; nothing trained",
-                      "episodes": int(tr.episode.max()) + 1, "seeds": int(df.seed.nunique()),
-                      "success_rate_last_100": round(float(last.success.mean()), 4),
-                      "habit_share_last_100": round(float(last.habit_actions.sum() / max(1, acts)), 4)}))
+    trained = metric_rows(run_dir) != before
+    summary = {"run_dir": str(run_dir), "status": "trained" if trained else "already finished; nothing trained",
+               **run_summary(run_dir)}
+    print(json.dumps(summary))
     print(f"next: apac-mj evaluate {run_dir}")
+    return 0

@@ -121,6 +121,13 @@ class TaskSpec:
         return dataclasses.replace(self, **overrides)
 
 
+def describe(spec: TaskSpec) -> str:
+    """Every field of ``spec``, one ``name = value`` line each, ``*`` marking those that differ from the defaults."""
+    default = TaskSpec(name=spec.name)
+    return "\n".join(f"{'*' if getattr(spec, f.name) != getattr(default, f.name) else ' '} {f.name} = "
+                     f"{getattr(spec, f.name)!r}" for f in dataclasses.fields(spec) if f.name != "name")
+
+
 def _check_choice(spec: TaskSpec, field: str, choices: tuple[str, ...]) -> None:
     value = getattr(spec, field)
     if value not in choices:
