@@ -157,7 +157,7 @@ def evaluation_targets(spec: TaskSpec, lengths: np.ndarray, own: list[Any], grid
             w, h = spec.plane_size
             t = t[(t[:, 0] >= 0) & (t[:, 0] <= w) & (t[:, 1] >= 0) & (t[:, 1] <= h)]
         if region is not None:
-            in_test = t[:, 1] >= spec.region.test_y_min
+            in_test = spec.region.contains_test(t)
             t = t[in_test if region == "test" else ~in_test]
         out.append(t)
     return out

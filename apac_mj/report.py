@@ -652,7 +652,7 @@ def fig_generalization(table: pd.DataFrame, seed_values: pd.DataFrame, path: Pat
     a, b = np.meshgrid(np.linspace(0, 180, 181), np.linspace(0, 180, 181), indexing="ij")
     end, _ = motion_function(a, b, *spec.link_lengths, origin=spec.origin)
     end = end.reshape(-1, 2)
-    test = end[:, 1] >= spec.region.test_y_min
+    test = spec.region.contains_test(end)
     ax_map.scatter(*end[~test].T, s=0.3, color="tab:red", label="train region")
     ax_map.scatter(*end[test].T, s=0.3, color="tab:blue", label=f"test region (y >= {spec.region.test_y_min} cm)")
     ax_map.set_aspect("equal")

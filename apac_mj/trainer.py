@@ -520,8 +520,7 @@ def _recorder(out_dir: Path, record_every: int | None, config: dict[str, Any]) -
     if record_every is None:
         return None
     from apac_mj import recording
-    if not hasattr(recording, "EpisodeRecorder"):
-        raise RuntimeError("--record-every needs apac_mj.recording.EpisodeRecorder, which this version lacks")
+
     return recording.EpisodeRecorder(out_dir / "recordings", record_every=record_every, config=config)
 
 

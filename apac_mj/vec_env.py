@@ -143,10 +143,6 @@ class VecEnv:
         """``[E, 2]`` the lengths the physics has now (they grow under changing kinematics)."""
         return np.stack([e.physics.link_lengths() for e in self.envs])
 
-    def task_link_lengths(self) -> np.ndarray:
-        """``[E, 2]`` the lengths each task will use at its next reset."""
-        return np.stack([e.task.link_lengths for e in self.envs])
-
     # -- exact save / restore ----------------------------------------------------------
     def get_state(self) -> dict[str, Any]:
         """Everything that evolves, as tensors and lists (``weights_only``-safe)."""

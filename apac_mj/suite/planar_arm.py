@@ -280,7 +280,7 @@ class Reach(base.Task):
             end, _ = motion_function(alpha, beta, *self._lengths, self.spec.origin)
             if not (0.0 <= end[0] <= w and 0.0 <= end[1] <= h):
                 continue
-            in_test = end[1] >= self.spec.region.test_y_min
+            in_test = self.spec.region.contains_test(end)
             if self.spec.target_region == "test" and not in_test:
                 continue
             if self.spec.target_region == "train" and in_test:

@@ -15,6 +15,8 @@ import dataclasses
 import math
 import tomllib
 from pathlib import Path
+
+import numpy as np
 from typing import Any
 
 from apac_mj import paths
@@ -41,8 +43,9 @@ class Region:
 
     test_y_min: float = 22.3
 
-    def contains_test(self, xy) -> bool:
-        return bool(xy[..., 1] >= self.test_y_min)
+    def contains_test(self, xy) -> np.ndarray:
+        """Which of the points ``xy`` (``[..., 2]``, cm) lie in the test region: ``[...]`` bool."""
+        return np.asarray(xy)[..., 1] >= self.test_y_min
 
 
 @dataclasses.dataclass(frozen=True)
