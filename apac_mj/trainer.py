@@ -136,12 +136,12 @@ def train(cfg: TrainConfig, out_dir: str | Path, progress: bool = True, on_step:
         say(f"{out_dir} already finished {cfg.episodes} episodes; nothing to train "
             f"(a larger --episodes extends it)")
         return out_dir
-    seeds, E, B = list(cfg.seeds), len(cfg.seeds), cfg.agent.babbling_episodes
+    seeds = list(cfg.seeds)
     env = training_env(cfg)
     agent = Agent(cfg.agent, seeds, device=cfg.device, precision=cfg.precision,
                   geometry=Geometry.from_spec(task_spec(cfg)))
     babble_gens = babbling_generators(seeds)
-    loop, rows, saved_at = LoopState.fresh(E, B, agent.device), [], None
+    loop, rows, saved_at = LoopState.fresh(len(seeds), cfg.agent.babbling_episodes, agent.device), [], None
     if checkpoint.run_checkpoints(out_dir / "checkpoints"):
         loop, rows = _restore(out_dir, config, agent, env, babble_gens)
         saved_at = loop.slowest()
@@ -151,29 +151,16 @@ def train(cfg: TrainConfig, out_dir: str | Path, progress: bool = True, on_step:
     on_step, on_episode_start = _chain_hooks(recorder, on_step, on_episode_start)
     episodes = EpisodeLoop(agent, arbitrator_for(cfg.agent), env, on_step=on_step,
                            on_episode_start=on_episode_start)
-    bar = tqdm(total=cfg.episodes, initial=min(loop.slowest(), cfg.episodes), disable=not progress,
-               desc=f"{cfg.agent.agent} {cfg.task} x{E}", unit="ep")
-    window = collections.deque(((r["success"], r["habit_actions"], r["planning_actions"])
-                                for r in rows if r["phase"] == "train"), maxlen=PROGRESS_WINDOW * E)
+    bar, window = _progress_bar(cfg, loop, rows, progress)
+    saved = _Saved(saved_at)
     try:
-        while (active := loop.episode < cfg.episodes).any():
-            _start_episodes(loop, active, episodes)
-            info = _step(cfg, loop, active, episodes, babble_gens)
-            for row in _finish_episodes(loop, info, seeds):
-                rows.append(row)
-                if row["phase"] == "train":
-                    window.append((row["success"], row["habit_actions"], row["planning_actions"]))
-            _progress(bar, loop, cfg.episodes, window)
-            if loop.slowest() // cfg.checkpoint_every > loop.checkpoints_done:
-                loop.checkpoints_done = loop.slowest() // cfg.checkpoint_every
-                _save(out_dir, config, loop, agent, env, babble_gens, rows)
-                saved_at = loop.slowest()
-        if saved_at != loop.slowest():  # not saved just now by the periodic checkpoint
+        _loop(cfg, out_dir, config, loop, rows, saved, episodes, babble_gens, bar, window)
+        if saved.at != loop.slowest():  # not saved just now by the periodic checkpoint
             _save(out_dir, config, loop, agent, env, babble_gens, rows)
         checkpoint.atomic_write_bytes(out_dir / "DONE", lambda f: f.write(b"done\n"))
     except KeyboardInterrupt:
         bar.close()
-        _say_interrupted(out_dir, saved_at, cfg)
+        _say_interrupted(out_dir, saved.at, cfg)
         raise
     finally:
         bar.close()
@@ -189,6 +176,41 @@ def training_env(cfg: TrainConfig) -> VecEnv:
     growth = task_spec(cfg).growth_start_episode + cfg.agent.babbling_episodes
     return VecEnv(cfg.task, list(cfg.seeds), cfg.actuation,
                   overrides={**cfg.task_overrides, "growth_start_episode": growth})
+
+
+@dataclasses.dataclass
+class _Saved:
+    """Training episodes (of the slowest member) in the newest checkpoint of this call; None: none yet."""
+
+    at: int | None
+
+
+def _progress_bar(cfg: TrainConfig, loop: LoopState, rows: list[dict[str, Any]],
+                  progress: bool) -> tuple[tqdm, collections.deque]:
+    """The episode bar and its window of the last episodes' (success, habit, planning) of all seeds."""
+    bar = tqdm(total=cfg.episodes, initial=min(loop.slowest(), cfg.episodes), disable=not progress,
+               desc=f"{cfg.agent.agent} {cfg.task} x{len(cfg.seeds)}", unit="ep")
+    window = collections.deque(((r["success"], r["habit_actions"], r["planning_actions"])
+                                for r in rows if r["phase"] == "train"), maxlen=PROGRESS_WINDOW * len(cfg.seeds))
+    return bar, window
+
+
+def _loop(cfg: TrainConfig, out_dir: Path, config: dict[str, Any], loop: LoopState, rows: list[dict[str, Any]],
+          saved: _Saved, episodes: EpisodeLoop, babble_gens: list[torch.Generator], bar: tqdm,
+          window: collections.deque) -> None:
+    """Episodes until every member finished ``cfg.episodes``, with the periodic checkpoints (``saved``)."""
+    while (active := loop.episode < cfg.episodes).any():
+        _start_episodes(loop, active, episodes)
+        info = _step(cfg, loop, active, episodes, babble_gens)
+        for row in _finish_episodes(loop, info, list(cfg.seeds)):
+            rows.append(row)
+            if row["phase"] == "train":
+                window.append((row["success"], row["habit_actions"], row["planning_actions"]))
+        _progress(bar, loop, cfg.episodes, window)
+        if loop.slowest() // cfg.checkpoint_every > loop.checkpoints_done:
+            loop.checkpoints_done = loop.slowest() // cfg.checkpoint_every
+            _save(out_dir, config, loop, episodes.agent, episodes.env, babble_gens, rows)
+            saved.at = loop.slowest()
 
 
 def say(message: str) -> None:
