@@ -25,6 +25,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from apac_mj import kinds
 from apac_mj.buffer import EnsembleReplay
 from apac_mj.config import AgentConfig
 from apac_mj.kinematics import Geometry
@@ -61,14 +62,16 @@ class Agent:
         torch.set_flush_denormal(True)
         self.cfg, self.seeds, self.precision = cfg, [int(s) for s in seeds], precision
         self.geometry = geometry or Geometry()
+        self.plane_scale = _plane_scale(cfg, self.geometry)
         self.E = len(self.seeds)
-        #: Habit formation from planning acts in APAC only: DDPG has no planner to learn from, SPAC no habit.
-        self._distill = cfg.habit_distillation_weight if cfg.agent == "apac" else 0.0
+        #: Habit formation from planning acts only in kinds that arbitrate: without a planner there is
+        #: nothing to learn from (DDPG), without a habit nothing learns (SPAC).
+        self._distill = cfg.habit_distillation_weight if kinds.get(cfg.agent).arbitrates else 0.0
         gens = [member_generators(s) for s in self.seeds]
         init = [g[0] for g in gens]
         self.actor = build_actor(cfg.actor_hidden, init).to(self.device)
         self.critic = build_critic(cfg.critic_hidden, init, cfg.critic_form).to(self.device)
-        self.forward_model = build_forward_model(cfg.forward_hidden, cfg.plane_scale, init).to(self.device)
+        self.forward_model = build_forward_model(cfg.forward_hidden, self.plane_scale, init).to(self.device)
         self.inverse_model = build_inverse_model(cfg.inverse_hidden, init).to(self.device)
         self.target_actor = _frozen_copy(self.actor)
         self.target_critic = _frozen_copy(self.critic)
@@ -86,7 +89,7 @@ class Agent:
         """Network input for positions (cm); identity unless ``normalize_inputs``."""
         if not self.cfg.normalize_inputs:
             return x
-        half = self.cfg.plane_scale / 2
+        half = self.plane_scale / 2
         return (x - half) / half
 
     def _act(self, a: torch.Tensor) -> torch.Tensor:
@@ -272,6 +275,19 @@ def _member_adam(nets: dict[str, tuple[nn.Module, float]], E: int,
     groups = [{"params": [v for vs in views[n] for v in vs], "lr": lr} for n, (_, lr) in nets.items()]
     opt = torch.optim.Adam(groups, weight_decay=weight_decay, fused=True)
     return opt, views
+
+
+def _plane_scale(cfg: AgentConfig, geometry: Geometry) -> float:
+    """The plane's size (cm) the networks scale positions by: the task's (``geometry``), which must be
+    square (the forward model has one output scale); ``cfg.plane_scale``, if set, must agree."""
+    w, h = geometry.plane_size
+    if w != h:
+        raise ValueError(f"the agent needs a square plane (one output scale for the forward model); "
+                         f"the task's plane is {w} x {h} cm")
+    if cfg.plane_scale is not None and cfg.plane_scale != w:
+        raise ValueError(f"AgentConfig.plane_scale = {cfg.plane_scale} but the task's plane is {w} x {h} cm: "
+                         f"set plane_scale = {w:g} or None (None: the task's plane)")
+    return float(w)
 
 
 def _frozen_copy(net: nn.Module) -> nn.Module:

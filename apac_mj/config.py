@@ -8,16 +8,16 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-AGENTS = ("ddpg", "spac", "apac")
+from apac_mj import kinds
 
 
 @dataclasses.dataclass
 class AgentConfig:
     """The agent: habit system (DDPG), planning system, arbitrator, integrator."""
 
-    #: Which controller acts: "ddpg" (always the actor), "spac" (always the
-    #: inverse model) or "apac" (the arbitrator decides).
-    agent: str = "apac"
+    #: The agent kind (apac_mj.kinds: its arbitrator decides which controller acts): ddpg (always
+    #: the actor), spac (always the inverse model), apac (the arbitrator decides) or a registered one.
+    agent: str = kinds.DEFAULT
 
     # -- networks (Table 2) --------------------------------------------------
     #: Actor hidden layers (relu); output 2 x tanh x action_scale.
@@ -39,8 +39,9 @@ class AgentConfig:
     inverse_hidden: tuple[int, int] = (400, 300)
     #: Scale of the actor's and the inverse model's tanh outputs (degrees).
     action_scale: float = 180.0
-    #: Scale of the forward model's sigmoid output (cm, the plane's size).
-    plane_scale: float = 30.0
+    #: Scale of the forward model's sigmoid output (cm): the task's plane size (the Agent reads it from
+    #: the task's geometry); a number here must equal it (None: take the task's, whatever it is).
+    plane_scale: float | None = 30.0
 
     # -- optimisation (Table 2; Adam everywhere) -----------------------------
     actor_lr: float = 1e-4
@@ -123,8 +124,7 @@ class AgentConfig:
         return self.ou_sigma_initial + frac * (self.ou_sigma - self.ou_sigma_initial)
 
     def __post_init__(self) -> None:
-        if self.agent not in AGENTS:
-            raise ValueError(f"agent must be one of {AGENTS}, got {self.agent!r}")
+        kinds.get(self.agent)  # an unknown kind: an error listing the registered ones
         for name in ("actor_lr", "critic_lr", "forward_lr", "inverse_lr", "tau", "gamma"):
             v = getattr(self, name)
             if not (0 < v <= 1):

@@ -6,7 +6,8 @@ networks (no noise, no updates) and runs, batched over all members at once:
 * ``grid``: the 100 angle-grid targets (:func:`apac_mj.kinematics.angle_grid`
   through the motion function at each member's end-of-training lengths);
   static-target runs: the member's own target, 100 episodes. Perfect vision.
-* ``occluded`` (SPAC and APAC; not applicable to DDPG): the same targets with
+* ``occluded`` (agent kinds that act in the dark, ``AgentKind.acts_occluded``: SPAC and
+  APAC; not applicable to DDPG): the same targets with
   the target and arm seen at step 0 only. The arm moves on the forward
   model's chained estimate and stops when that estimate is inside the target
   zone (or after the episode's 30 steps); the real final distance is recorded.
@@ -23,7 +24,6 @@ target) and ``eval/summary.json``; returns the summary.
 """
 from __future__ import annotations
 
-import io
 import json
 from pathlib import Path
 from typing import Any, Sequence
@@ -35,10 +35,11 @@ from tqdm.auto import tqdm
 
 from apac_mj import checkpoint
 from apac_mj.agent import Agent
-from apac_mj.arbitrator import Arbitrator
 from apac_mj.config import TrainConfig, task_spec, train_config_from_dict
+from apac_mj.files import atomic_write_parquet
 from apac_mj.kinematics import Geometry, angle_grid, motion_function
-from apac_mj.rollout import OnEpisodeStart, OnStep, agent_step, observed_state, select_action
+from apac_mj.kinds import arbitrator_for, get as get_kind
+from apac_mj.rollout import EpisodeLoop, OnEpisodeStart, OnStep
 from apac_mj.suite.task_spec import TaskSpec
 from apac_mj.vec_env import VecEnv
 
@@ -74,7 +75,7 @@ def load_run(run_dir: Path, device: str | None = None) -> tuple[TrainConfig, Age
 
 def not_a_run_dir(path: Path, command: str) -> str:
     """Why ``path`` is not a run directory; for a grid's results directory, its cells to choose from."""
-    from apac_mj.grid import CELL_FILE
+    from apac_mj.results import CELL_FILE
 
     path = Path(path)
     if not path.is_dir():
@@ -117,9 +118,10 @@ def evaluate(run_dir: str | Path, protocols: Sequence[str] = ("grid", "occluded"
     summary.update(run_dir=str(run_dir), agent=cfg.agent.agent, task=cfg.task, seeds=list(cfg.seeds),
                    finished=(run_dir / "DONE").is_file())
     for protocol in protocols:
-        if protocol == "occluded" and cfg.agent.agent == "ddpg":
-            summary.setdefault("protocols", {})[protocol] = {"applicable": False,
-                                                             "reason": "DDPG has no forward model to move on"}
+        kind = get_kind(cfg.agent.agent)
+        if protocol == "occluded" and not kind.acts_occluded:
+            reason = kind.occluded_reason or f"{kind.label} does not act without vision"
+            summary.setdefault("protocols", {})[protocol] = {"applicable": False, "reason": reason}
             continue
         reg = "test" if protocol == "generalization" else region
         targets = evaluation_targets(spec, lengths, own, grid_only=protocol == "generalization", region=reg)
@@ -129,7 +131,7 @@ def evaluate(run_dir: str | Path, protocols: Sequence[str] = ("grid", "occluded"
         df = pd.DataFrame(rows)
         if protocol == "occluded":
             df = df.drop(columns=["path_x", "path_y"])
-        _write_parquet(run_dir / "eval" / f"{protocol}.parquet", df)
+        atomic_write_parquet(run_dir / "eval" / f"{protocol}.parquet", df)
         summary.setdefault("protocols", {})[protocol] = summarize(df, spec.zone_radius)
     text = json.dumps(summary, indent=2) + "\n"
     checkpoint.atomic_write_bytes(run_dir / "eval" / "summary.json", lambda f: f.write(text.encode()))
@@ -155,7 +157,7 @@ def evaluation_targets(spec: TaskSpec, lengths: np.ndarray, own: list[Any], grid
             w, h = spec.plane_size
             t = t[(t[:, 0] >= 0) & (t[:, 0] <= w) & (t[:, 1] >= 0) & (t[:, 1] <= h)]
         if region is not None:
-            in_test = t[:, 1] >= spec.region.test_y_min
+            in_test = spec.region.contains_test(t)
             t = t[in_test if region == "test" else ~in_test]
         out.append(t)
     return out
@@ -179,51 +181,31 @@ def run_protocol(cfg: TrainConfig, agent: Agent, spec: TaskSpec, lengths: np.nda
                  on_episode_start: OnEpisodeStart | None = None) -> list[dict[str, Any]]:
     """Episode ``i`` of every member goes to its ``targets[k][i]``; all members side by side."""
     env = _eval_env(cfg, spec, lengths, occluded)
-    arbitrator = Arbitrator(cfg.agent)
+    episodes = EpisodeLoop(agent, arbitrator_for(cfg.agent), env, zone_radius=spec.zone_radius, on_step=on_step,
+                           on_episode_start=on_episode_start)
     counts = np.array([len(t) for t in targets])
     rows = []
     for i in tqdm(range(int(counts.max(initial=0))), disable=not progress, desc="evaluate", unit="target"):
         members = counts > i
         padded = np.stack([t[i] if len(t) > i else np.zeros(2) for t in targets])
         env.set_target_override(padded, members)
-        rows += _episode(cfg, agent, arbitrator, env, spec, members, i, occluded, on_step, on_episode_start)
+        rows += _episode(cfg, episodes, spec, members, i, occluded)
     return rows
 
 
-def _episode(cfg: TrainConfig, agent: Agent, arbitrator: Arbitrator, env: VecEnv, spec: TaskSpec,
-             members: np.ndarray, index: int, occluded: bool, on_step: OnStep | None,
-             on_episode_start: OnEpisodeStart | None) -> list[dict[str, Any]]:
-    """One frozen episode for ``members``; returns their result rows."""
-    E = env.E
-    obs = env.reset(members)
-    if on_episode_start is not None:
-        on_episode_start(members.copy(), env)
-    state = observed_state(obs, agent.device)
-    running, step = members.copy(), np.zeros(E, dtype=np.int64)
-    habit_n, plan_n = np.zeros(E, dtype=np.int64), np.zeros(E, dtype=np.int64)
-    last_delta = np.full(E, np.nan)
-    path = [[env.true_arm()[k, :2].copy()] for k in range(E)]
-    after_planning = np.full(E, cfg.agent.planning_episodes, dtype=np.int64)
-    judged = np.zeros(E, dtype=bool)
-    while running.any():
-        action, habit = select_action(agent, arbitrator, state, after_planning, step, last_delta, running,
-                                      explore=False)
-        info = agent_step(agent, arbitrator, env, state, np.full(E, index), step, last_delta, running,
-                          explore=False, zone_radius=spec.zone_radius, action=action, habit=habit)
-        if on_step is not None:
-            on_step(info, env)
-        rows = torch.as_tensor(running, device=state.device)
-        state = torch.where(rows[:, None], torch.as_tensor(info.next_state, device=state.device), state)
-        last_delta = np.where(running, info.delta, last_delta)
-        habit_n += running & info.habit
-        plan_n += running & ~info.habit
-        step += running
-        for k in np.flatnonzero(running):
+def _episode(cfg: TrainConfig, episodes: EpisodeLoop, spec: TaskSpec, members: np.ndarray, index: int,
+             occluded: bool) -> list[dict[str, Any]]:
+    """One frozen episode for ``members`` (arbitrated as after the planning phase); their result rows."""
+    env = episodes.env
+    st = episodes.begin(members)
+    path = [[env.true_arm()[k, :2].copy()] for k in range(env.E)]
+    judged = np.zeros(env.E, dtype=bool)
+    for info, stepped in episodes.steps(st, members, index, arbitration_episode=cfg.agent.planning_episodes,
+                                        stop_on_terminal=occluded):
+        for k in np.flatnonzero(stepped):
             path[k].append(info.true_arm[k, :2].copy())
-        stop = info.done | (info.terminal if occluded else np.zeros(E, dtype=bool))
-        judged |= running & stop & info.terminal
-        running &= ~stop
-    return [_row(env, k, index, step, habit_n, plan_n, path, spec.zone_radius, bool(judged[k]))
+        judged |= stepped & info.terminal & (info.done | occluded)
+    return [_row(env, k, index, st.step, st.habit_n, st.plan_n, path, spec.zone_radius, bool(judged[k]))
             for k in np.flatnonzero(members)]
 
 
@@ -279,7 +261,3 @@ def _read_summary(run_dir: Path) -> dict[str, Any]:
     return json.loads(path.read_text()) if path.is_file() else {}
 
 
-def _write_parquet(path: Path, df: pd.DataFrame) -> None:
-    buf = io.BytesIO()
-    df.to_parquet(buf, index=False)
-    checkpoint.atomic_write_bytes(path, lambda f: f.write(buf.getvalue()))

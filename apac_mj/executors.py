@@ -1,6 +1,6 @@
 """Where cells run: this machine (LocalExecutor) or a Ray cluster (RayExecutor).
 
-Both run the same function (``grid.run_cell``) on prepared cell directories,
+Both run the cell runner they are given (``grid.run_grid`` gives ``grid.run_cell``) on prepared cell directories,
 so the results directory layout and the resume behaviour do not depend on the
 executor. A cluster needs the results directory on a file system every node
 sees (NFS, a mounted bucket); Ray carries only the cell's path and status.
@@ -15,15 +15,16 @@ from typing import Any
 
 from tqdm.auto import tqdm
 
-from apac_mj.grid import run_cell
-
 OnResult = Callable[[dict[str, Any]], None]
+#: ``run_cell(cell_dir, progress, threads) -> {"cell", "status", ...}``; a module-level function (pickled
+#: for process pools and Ray).
+CellRunner = Callable[[str, bool, int], dict[str, Any]]
 
 
-def _safe_run_cell(cell_dir: str, progress: bool, threads: int = 1) -> dict[str, Any]:
-    """run_cell, with a failure reported as a status instead of ending the grid."""
+def _safe_run_cell(run_cell: CellRunner, cell_dir: str, progress: bool, threads: int = 1) -> dict[str, Any]:
+    """``run_cell``, with a failure reported as a status instead of ending the grid."""
     try:
-        return run_cell(cell_dir, progress=progress, threads=threads)
+        return run_cell(cell_dir, progress, threads)
     except Exception as e:  # noqa: BLE001 - a failed cell is recorded, the others go on
         traceback.print_exc()
         return {"cell": cell_dir.rstrip("/").rsplit("/", 1)[-1], "status": "failed", "error": f"{type(e).__name__}: {e}"}
@@ -42,16 +43,17 @@ class LocalExecutor:
             raise ValueError(f"workers must be >= 1, got {workers}")
         self.workers = workers
 
-    def run(self, cell_dirs: Sequence[str], on_result: OnResult, progress: bool = True, done: int = 0,
-            total: int | None = None, threads: int = 1) -> None:
+    def run(self, cell_dirs: Sequence[str], run_cell: CellRunner, on_result: OnResult, progress: bool = True,
+            done: int = 0, total: int | None = None, threads: int = 1) -> None:
+        """``run_cell`` on every directory; ``on_result`` gets each status as it arrives."""
         with _grid_bar(progress, done, total or len(cell_dirs)) as bar:
             if self.workers == 1:
                 for d in cell_dirs:
-                    _report(bar, on_result, _safe_run_cell(d, progress, threads))
+                    _report(bar, on_result, _safe_run_cell(run_cell, d, progress, threads))
                 return
             ctx = multiprocessing.get_context("spawn")
             with cf.ProcessPoolExecutor(self.workers, mp_context=ctx) as pool:
-                futures = [pool.submit(_safe_run_cell, d, progress, threads) for d in cell_dirs]
+                futures = [pool.submit(_safe_run_cell, run_cell, d, progress, threads) for d in cell_dirs]
                 for fut in cf.as_completed(futures):
                     _report(bar, on_result, fut.result())
 
@@ -66,13 +68,14 @@ class RayExecutor:
         self.address = address
         self.num_cpus = num_cpus
 
-    def run(self, cell_dirs: Sequence[str], on_result: OnResult, progress: bool = True, done: int = 0,
-            total: int | None = None, threads: int = 1) -> None:
+    def run(self, cell_dirs: Sequence[str], run_cell: CellRunner, on_result: OnResult, progress: bool = True,
+            done: int = 0, total: int | None = None, threads: int = 1) -> None:
+        """One Ray task of ``run_cell`` per directory; ``on_result`` gets each status as it arrives."""
         ray = import_ray()
         started_here = self._init(ray)
         try:
             remote = ray.remote(num_cpus=threads, max_retries=0)(_safe_run_cell)
-            pending = [remote.remote(d, False, threads) for d in cell_dirs]
+            pending = [remote.remote(run_cell, d, False, threads) for d in cell_dirs]
             with _grid_bar(progress, done, total or len(cell_dirs)) as bar:
                 while pending:
                     ready, pending = ray.wait(pending, num_returns=1)

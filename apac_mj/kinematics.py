@@ -68,22 +68,23 @@ def angle_grid(n: int = 10, low: float = 0.0, high: float = 180.0) -> np.ndarray
 
 @dataclasses.dataclass(frozen=True)
 class Geometry:
-    """What the agent knows of the arm's geometry: the shoulder and the joints' range.
+    """What the agent knows of the arm's geometry: the plane, the shoulder and the joints' range.
 
     The task gives it (:meth:`from_spec`); ``joint_range`` None means unbounded joints
     (the task's ``joints.at_limit = "unbounded"``).
     """
 
     origin: tuple[float, float] = DEFAULT_ORIGIN
+    #: (width, height) of the plane in cm; the plane spans [0, w] x [0, h].
+    plane_size: tuple[float, float] = (30.0, 30.0)
     #: (low, high) of both joints in degrees; None: no limit.
     joint_range: tuple[float, float] | None = (0.0, 180.0)
 
     @classmethod
     def from_spec(cls, spec) -> "Geometry":
         """The geometry of a :class:`apac_mj.suite.task_spec.TaskSpec`."""
-        from apac_mj.suite.planar_arm import JOINT_RANGE
-
-        return cls(origin=tuple(spec.origin), joint_range=JOINT_RANGE if spec.at_limit == "clip" else None)
+        return cls(origin=tuple(spec.origin), plane_size=tuple(spec.plane_size),
+                   joint_range=tuple(spec.joint_range) if spec.at_limit == "clip" else None)
 
     def joint_angles(self, end: torch.Tensor, elbow: torch.Tensor) -> torch.Tensor:
         """(shoulder, elbow) angles in degrees ``[..., 2]`` from the end and elbow positions ``[..., 2]`` (cm),

@@ -17,7 +17,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import textwrap
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 
 import matplotlib
@@ -28,12 +28,33 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 from scipy import stats  # noqa: E402
 
-from apac_mj.grid import CONDITIONS, MANIFEST, load_results, load_tests, read_json  # noqa: E402
+from apac_mj import kinds  # noqa: E402
+from apac_mj.files import read_json  # noqa: E402
+from apac_mj.presets import CONDITIONS  # noqa: E402
+from apac_mj.results import MANIFEST, load_results, load_tests  # noqa: E402
 
-AGENT_ORDER = ("ddpg", "spac", "apac")
-AGENT_LABEL = {"ddpg": "DDPG", "spac": "SPAC", "apac": "APAC"}
-AGENT_COLOR = {"ddpg": "tab:orange", "spac": "tab:green", "apac": "tab:blue"}
-#: The paper's abbreviations (Fig. 4): target / kinematics, s = static, c = changing.
+
+
+class _KindView(Mapping):
+    """A live read-only view ``kind name -> AgentKind.<attr>`` of the registry (apac_mj.kinds)."""
+
+    def __init__(self, attr: str) -> None:
+        self.attr = attr
+
+    def __getitem__(self, name: str) -> str:
+        return getattr(kinds.get(name), self.attr)
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(kinds.names())
+
+    def __len__(self) -> int:
+        return len(kinds.names())
+
+
+#: Figure and table labels and colours of the agent kinds, read from the registry.
+AGENT_LABEL, AGENT_COLOR = _KindView("label"), _KindView("color")
+#: The paper's abbreviations (Fig. 4): target / kinematics, s = static, c = changing. Another condition
+#: (a task of the user's) is called by its name, labelled by its description and coloured from EXTRA_COLORS.
 COND_SHORT = {"static_target": "ss", "static_target_changing_kinematics": "sc",
               "changing_target": "cs", "changing_target_changing_kinematics": "cc"}
 COND_LABEL = {"static_target": "static target / static kinematics",
@@ -43,6 +64,31 @@ COND_LABEL = {"static_target": "static target / static kinematics",
 #: Condition colours (Fig. 3, top row): none of them an agent's colour.
 COND_COLOR = {"static_target": "tab:purple", "static_target_changing_kinematics": "tab:brown",
               "changing_target": "tab:olive", "changing_target_changing_kinematics": "tab:cyan"}
+#: Colours for conditions beyond the paper's (none of them a built-in agent's or condition's).
+EXTRA_COLORS = ("tab:gray", "tab:red", "gold", "navy", "teal", "darkred")
+
+
+def _cond_color(cond: str) -> str:
+    """A condition's colour: the paper's, else the next unused extra colour (stable per name)."""
+    return COND_COLOR.get(cond) or EXTRA_COLORS[sum(map(ord, cond)) % len(EXTRA_COLORS)]
+
+
+def _cond_short(cond: str) -> str:
+    return COND_SHORT.get(cond, cond)
+
+
+def _cond_label(cond: str) -> str:
+    """The paper's label, or the task's own description for another condition."""
+    if cond in COND_LABEL:
+        return COND_LABEL[cond]
+    from apac_mj.suite.task_spec import load_task
+
+    try:
+        return load_task(cond).description or cond
+    except KeyError:
+        return cond
+
+
 #: Interval level, bootstrap resamples and the bootstrap's fixed seed (reports are reproducible).
 LEVEL, BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED = 0.95, 10_000, 0
 #: A mean resting on fewer samples than this is marked in report.md.
@@ -205,8 +251,8 @@ def per_seed(metrics: pd.DataFrame, tests: pd.DataFrame) -> pd.DataFrame:
     rows.append(_rate("train_success_late", g["success"]))
     rows.append(_q("steps_late", g["steps"].mean(), g.size()))
     rows.append(_q("time_late", g["time"].mean(), g.size()))
-    apac = lt[lt["agent"] == "apac"].groupby(keys)
-    habit, actions = apac["habit_actions"].sum(), apac["habit_actions"].sum() + apac["planning_actions"].sum()
+    arb = lt[lt["agent"].isin(_arbitrating(lt))].groupby(keys)
+    habit, actions = arb["habit_actions"].sum(), arb["habit_actions"].sum() + arb["planning_actions"].sum()
     rows.append(_q("habit_fraction_late", 100 * habit / actions, actions, k=habit))
     if not tests.empty:
         grid_tests = tests[tests["protocol"] == "grid"]
@@ -279,22 +325,28 @@ def key_numbers(seed_values: pd.DataFrame) -> pd.DataFrame:
                     "paper": paper_value(q, agent, cond)})
     df = pd.DataFrame(out)
     order = {q: i for i, q in enumerate(QUANTITIES)}
-    df["_o"] = df["quantity"].map(order) * 1000 + df["condition"].map(_rank(CONDITIONS)) * 10 \
-        + df["agent"].map(_rank(AGENT_ORDER))
+    df["_o"] = df["quantity"].map(order) * 1000 + df["condition"].map(_rank(_condition_order(df["condition"]))) * 10 \
+        + df["agent"].map(_rank(kinds.names()))
     return df.sort_values("_o").drop(columns="_o").reset_index(drop=True)
 
 
 def differences(seed_values: pd.DataFrame) -> pd.DataFrame:
-    """Intervals of the key differences, per condition: APAC - SPAC training and test success, and
-    APAC's habit share in each condition minus its share on the static target (percentage points)."""
+    """Intervals of the key differences, per condition: each arbitrating kind (APAC) - each planning-only
+    kind (SPAC) training and test success, and each arbitrating kind's habit share in each condition
+    minus its share on the static target (percentage points)."""
     def rows(q: str, agent: str, cond: str) -> pd.DataFrame:
         sel = seed_values[(seed_values["quantity"] == q) & (seed_values["agent"] == agent)
                           & (seed_values["condition"] == cond)]
         return sel.set_index("seed")
 
-    conds = [c for c in CONDITIONS if c in set(seed_values["condition"])]
-    pairs = [(q, ("apac", c), ("spac", c)) for q in ("train_success_late", "test_success") for c in conds]
-    pairs += [("habit_fraction_late", ("apac", c), ("apac", "static_target")) for c in conds if c != "static_target"]
+    conds = _condition_order(seed_values["condition"])
+    present = [a for a in kinds.names() if a in set(seed_values["agent"])]
+    arbitrating = [a for a in present if kinds.get(a).arbitrates]
+    planning = [a for a in present if not kinds.get(a).uses_habit]
+    pairs = [(q, (a, c), (b, c)) for q in ("train_success_late", "test_success") for c in conds
+             for a in arbitrating for b in planning]
+    pairs += [("habit_fraction_late", (a, c), (a, "static_target")) for c in conds if c != "static_target"
+              for a in arbitrating]
     out = []
     for q, (a1, c1), (a2, c2) in pairs:
         ra, rb = rows(q, a1, c1), rows(q, a2, c2)
@@ -305,7 +357,7 @@ def differences(seed_values: pd.DataFrame) -> pd.DataFrame:
             nlo, nhi = newcombe_interval(ra["k"].sum(), ra["n"].sum(), rb["k"].sum(), rb["n"].sum())
             lo, hi = (100 * nlo, 100 * nhi) if math.isnan(lo) else (min(lo, 100 * nlo), max(hi, 100 * nhi))
         out.append({"quantity": q, "description": QUANTITIES[q][1],
-                    "comparison": f"{AGENT_LABEL[a1]} {COND_SHORT[c1]} - {AGENT_LABEL[a2]} {COND_SHORT[c2]}",
+                    "comparison": f"{AGENT_LABEL[a1]} {_cond_short(c1)} - {AGENT_LABEL[a2]} {_cond_short(c2)}",
                     "unit": "points" if is_rate(q) else QUANTITIES[q][2], "n_seeds": int(min(ra["value"].notna().sum(), rb["value"].notna().sum())),
                     "difference": diff, "ci95_low": lo, "ci95_high": hi,
                     "interval": ("paired bootstrap over seeds" if paired else "bootstrap over seeds (unpaired)")
@@ -321,11 +373,33 @@ def _rank(order: Sequence[str]) -> dict[str, int]:
 # -- figures -------------------------------------------------------------------------
 
 def _agents(df: pd.DataFrame) -> list[str]:
-    return [a for a in AGENT_ORDER if a in set(df["agent"])]
+    """The registered kinds present in ``df``, in registry order; an unregistered one is an error."""
+    check_kinds(df)
+    return [a for a in kinds.names() if a in set(df["agent"])]
+
+
+def _arbitrating(df: pd.DataFrame) -> list[str]:
+    """The kinds in ``df`` whose arbitrator chooses between habit and planning (APAC)."""
+    return [a for a in _agents(df) if kinds.get(a).arbitrates]
+
+
+def check_kinds(df: pd.DataFrame) -> None:
+    """Every agent kind in the results is registered (else it would vanish from the figures)."""
+    unknown = sorted(set(df["agent"]) - set(kinds.names()))
+    if unknown:
+        raise kinds.UnknownKindError(
+            f"the results hold agent kind(s) {unknown} that are not registered (registered: "
+            f"{', '.join(kinds.names())}); register them with apac_mj.kinds.register before reporting")
 
 
 def _conditions(df: pd.DataFrame) -> list[str]:
-    return [c for c in CONDITIONS if c in set(df["condition"])]
+    return _condition_order(df["condition"])
+
+
+def _condition_order(conditions: Iterable[str]) -> list[str]:
+    """The conditions present: the paper's in its order, then any other (a user's task) by name."""
+    present = set(conditions)
+    return [c for c in CONDITIONS if c in present] + sorted(present - set(CONDITIONS))
 
 
 def _seed_curves(frame: pd.DataFrame, column: str, window: int) -> pd.DataFrame:
@@ -401,7 +475,7 @@ def fig_training_success(metrics: pd.DataFrame, path: Path) -> Path:
         for cond in conds:
             sel = train[(train["agent"] == agent) & (train["condition"] == cond)]
             if len(sel):
-                _line(ax, sel, "success", w, COND_SHORT[cond] + ": " + COND_LABEL[cond], COND_COLOR[cond], 100)
+                _line(ax, sel, "success", w, _cond_short(cond) + ": " + _cond_label(cond), _cond_color(cond), 100)
         _style(ax, f"{AGENT_LABEL[agent]} (colour: condition)", "training episode", "success rate (%)",
                ylim=(-2, 102))
     for j, cond in enumerate(conds):
@@ -410,7 +484,7 @@ def fig_training_success(metrics: pd.DataFrame, path: Path) -> Path:
             sel = train[(train["agent"] == agent) & (train["condition"] == cond)]
             if len(sel):
                 _line(ax, sel, "success", w, AGENT_LABEL[agent], AGENT_COLOR[agent], 100)
-        _style(ax, f"{COND_LABEL[cond]} (colour: agent)", "training episode", "success rate (%)", ylim=(-2, 102))
+        _style(ax, f"{_cond_label(cond)} (colour: agent)", "training episode", "success rate (%)", ylim=(-2, 102))
     _hide_unused(axes, [len(agents), len(conds)])
     return _save(axes[0, 0].figure, path, f"Fig. 3: training success (moving average over {_episodes(w)}; "
                                           f"bold: mean over seeds, {_band_words(train)})")
@@ -435,7 +509,7 @@ def fig_losses(metrics: pd.DataFrame, path: Path) -> Path:
                     ax.plot(x, m, color=AGENT_COLOR[agent], label=AGENT_LABEL[agent], lw=1.2)
             if column != "actor_loss":
                 ax.set_yscale("log")
-            _style(ax, f"{COND_LABEL[cond]}\n{label}", "training episode", "loss (mean over seeds)")
+            _style(ax, f"{_cond_label(cond)}\n{label}", "training episode", "loss (mean over seeds)")
     return _save(axes[0, 0].figure, path, f"Training losses per episode (mean of the episode's updates; "
                                           f"moving average over {_episodes(w)}, mean over seeds)")
 
@@ -484,7 +558,7 @@ def _bars(ax: plt.Axes, table: pd.DataFrame, seed_values: pd.DataFrame, quantity
             jitter = np.linspace(-width / 4, width / 4, len(v)) if len(v) > 1 else np.zeros(len(v))
             ax.scatter(xi + jitter, v, s=9, color="black", zorder=3, label="single seeds" if k == 0 and
                        cond == conds[0] and len(v) else None)
-    ax.set_xticks(np.arange(len(conds)), [COND_SHORT[c] for c in conds])
+    ax.set_xticks(np.arange(len(conds)), [_cond_short(c) for c in conds])
 
 
 def fig_test(table: pd.DataFrame, seed_values: pd.DataFrame, path: Path) -> Path:
@@ -503,20 +577,26 @@ def fig_test(table: pd.DataFrame, seed_values: pd.DataFrame, path: Path) -> Path
 
 
 def fig_arbitration(metrics: pd.DataFrame, path: Path) -> Path:
-    """Fig. 5: APAC's habitual vs planning actions per episode, per condition."""
-    apac = metrics[(metrics["agent"] == "apac") & (metrics["phase"] == "train") & (metrics["region"] == "all")]
-    conds, w = _conditions(apac), _window(apac)
-    axes = _axes(1, max(len(conds), 1))
-    for j, cond in enumerate(conds):
-        sel = apac[apac["condition"] == cond]
-        _line(axes[0, j], sel, "habit_actions", w, "habitual (actor)", "tab:blue")
-        _line(axes[0, j], sel, "planning_actions", w, "planning (inverse model)", "tab:red")
-        _style(axes[0, j], COND_LABEL[cond], "training episode", "actions per episode")
+    """Fig. 5: habitual vs planning actions per episode, per condition (one row per arbitrating kind: APAC)."""
+    main = metrics[(metrics["phase"] == "train") & (metrics["region"] == "all")]
+    arbitrating = _arbitrating(main)
+    sel_all = main[main["agent"].isin(arbitrating)]
+    conds, w = _conditions(sel_all), _window(sel_all)
+    axes = _axes(max(len(arbitrating), 1), max(len(conds), 1))
+    for i, agent in enumerate(arbitrating):
+        for j, cond in enumerate(conds):
+            sel = sel_all[(sel_all["agent"] == agent) & (sel_all["condition"] == cond)]
+            _line(axes[i, j], sel, "habit_actions", w, "habitual (actor)", "tab:blue")
+            _line(axes[i, j], sel, "planning_actions", w, "planning (inverse model)", "tab:red")
+            title = _cond_label(cond) if len(arbitrating) == 1 else f"{AGENT_LABEL[agent]}, {_cond_label(cond)}"
+            _style(axes[i, j], title, "training episode", "actions per episode")
     if not conds:
-        axes[0, 0].text(0.5, 0.5, "no APAC cell in these results", ha="center", transform=axes[0, 0].transAxes)
-        _style(axes[0, 0], "APAC", "training episode", "actions per episode")
-    return _save(axes[0, 0].figure, path, f"Fig. 5: APAC arbitration (moving average over {_episodes(w)}; "
-                                          f"bold: mean over seeds, {_band_words(apac)})")
+        axes[0, 0].text(0.5, 0.5, "no arbitrating agent in these results", ha="center",
+                        transform=axes[0, 0].transAxes)
+        _style(axes[0, 0], "arbitration", "training episode", "actions per episode")
+    names = ", ".join(AGENT_LABEL[a] for a in arbitrating) or "APAC"
+    return _save(axes[0, 0].figure, path, f"Fig. 5: {names} arbitration (moving average over {_episodes(w)}; "
+                                          f"bold: mean over seeds, {_band_words(sel_all)})")
 
 
 def fig_steps_time(metrics: pd.DataFrame, path: Path) -> Path:
@@ -531,8 +611,8 @@ def fig_steps_time(metrics: pd.DataFrame, path: Path) -> Path:
             if len(sel):
                 _line(axes[0, j], sel, "steps", w, AGENT_LABEL[agent], AGENT_COLOR[agent])
                 _line(axes[1, j], sel, "time", w, AGENT_LABEL[agent], AGENT_COLOR[agent])
-        _style(axes[0, j], COND_LABEL[cond], "training episode", "action steps per episode")
-        _style(axes[1, j], COND_LABEL[cond], "training episode",
+        _style(axes[0, j], _cond_label(cond), "training episode", "action steps per episode")
+        _style(axes[1, j], _cond_label(cond), "training episode",
                f"time per episode (habit steps; planning = {PLANNING_COST}x)")
     return _save(axes[0, 0].figure, path, f"Fig. 6: steps and time per episode (moving average over "
                                           f"{_episodes(w)}; bold: mean over seeds, {_band_words(train)})")
@@ -553,7 +633,7 @@ def fig_trajectories(tests: pd.DataFrame, path: Path) -> Path:
             ax.set_aspect("equal")
             ax.set_xlim(0, 30)
             ax.set_ylim(0, 30)
-            _style(ax, f"{AGENT_LABEL[agent]}, {COND_SHORT[cond]} ({sel['success'].mean():.0%} reached)",
+            _style(ax, f"{AGENT_LABEL[agent]}, {_cond_short(cond)} ({sel['success'].mean():.0%} reached)",
                    "x (cm)", "y (cm)")
     if not conds:
         axes[0, 0].text(0.5, 0.5, "no changing-target test results", ha="center", transform=axes[0, 0].transAxes)
@@ -572,7 +652,7 @@ def fig_generalization(table: pd.DataFrame, seed_values: pd.DataFrame, path: Pat
     a, b = np.meshgrid(np.linspace(0, 180, 181), np.linspace(0, 180, 181), indexing="ij")
     end, _ = motion_function(a, b, *spec.link_lengths, origin=spec.origin)
     end = end.reshape(-1, 2)
-    test = end[:, 1] >= spec.region.test_y_min
+    test = spec.region.contains_test(end)
     ax_map.scatter(*end[~test].T, s=0.3, color="tab:red", label="train region")
     ax_map.scatter(*end[test].T, s=0.3, color="tab:blue", label=f"test region (y >= {spec.region.test_y_min} cm)")
     ax_map.set_aspect("equal")
@@ -613,7 +693,7 @@ def fig_occluded(tests: pd.DataFrame, table: pd.DataFrame, path: Path) -> Path:
                 ax.axhline(dist, color="tab:green", ls="--", lw=1.2,
                            label=f"their distance: {dist:.2f} cm")
             ax.axhline(load_task(cond).zone_radius, color="red", lw=1.2, label="target-zone radius")
-            _style(ax, f"{AGENT_LABEL[agent]}, {COND_LABEL[cond]}", "test target index", "final distance (cm)")
+            _style(ax, f"{AGENT_LABEL[agent]}, {_cond_label(cond)}", "test target index", "final distance (cm)")
             top = float(np.nanmax([sel["final_distance"].max(), load_task(cond).zone_radius]))
             ax.set_ylim(0, 1.9 * top)  # room above the data for the legend
             ax.legend(fontsize=6.5, loc="upper left", framealpha=0.9)
@@ -634,11 +714,61 @@ def _table_mean(table: pd.DataFrame, quantity: str, agent: str, cond: str) -> fl
 
 @dataclasses.dataclass
 class Figure:
+    """One figure of this report: its file, its caption and how to draw it."""
+
     file: str
     caption: str
     make: Callable[[], Path]
     #: False: these results hold nothing to draw; the figure is skipped and report.md says so.
     has_data: bool = True
+
+
+@dataclasses.dataclass(frozen=True)
+class ReportData:
+    """What a figure is drawn from: the results directory and its tables (:func:`write_report` builds it)."""
+
+    results: Path
+    #: Every cell's metrics.parquet (apac_mj.results.load_results).
+    metrics: pd.DataFrame
+    #: Every cell's eval/<protocol>.parquet (apac_mj.results.load_tests).
+    tests: pd.DataFrame
+    #: One row per (quantity, agent, condition, seed) (:func:`per_seed`).
+    seed_values: pd.DataFrame
+    #: The key-number table (:func:`key_numbers`).
+    table: pd.DataFrame
+
+
+@dataclasses.dataclass(frozen=True)
+class FigureSpec:
+    """A figure added from user code (:func:`register_figure`): drawn after the paper's, listed in report.md."""
+
+    #: File name in the report directory (e.g. "fig11_my_figure.png").
+    file: str
+    caption: str
+    #: ``draw(data, path)`` writes the figure to ``path``.
+    draw: Callable[[ReportData, Path], object]
+    #: ``applies(data)``: these results hold something to draw (else the figure is skipped, and said so).
+    applies: Callable[[ReportData], bool] = lambda data: True
+
+
+_FIGURES: dict[str, FigureSpec] = {}
+
+
+def register_figure(spec: FigureSpec, replace: bool = False) -> FigureSpec:
+    """Add a figure to every report written from now on (in this process)."""
+    if spec.file in _FIGURES and not replace:
+        raise ValueError(f"a figure {spec.file!r} is already registered (pass replace=True to redefine it)")
+    if not spec.file.endswith((".png", ".svg", ".pdf")):
+        raise ValueError(f"figure file must end in .png, .svg or .pdf, got {spec.file!r}")
+    _FIGURES[spec.file] = spec
+    return spec
+
+
+def unregister_figure(file: str) -> None:
+    """Remove a figure added by :func:`register_figure`."""
+    if file not in _FIGURES:
+        raise KeyError(f"no figure {file!r} is registered; registered: {', '.join(_FIGURES) or 'none'}")
+    del _FIGURES[file]
 
 
 def write_report(results: str | Path, out: str | Path | None = None, title: str | None = None,
@@ -647,6 +777,7 @@ def write_report(results: str | Path, out: str | Path | None = None, title: str 
     differences.csv and report.md; returns the directory."""
     results = Path(results)
     metrics, tests = load_results(results), load_tests(results)
+    check_kinds(metrics)  # before anything is written
     out = Path(out) if out else results / "report"
     out.mkdir(parents=True, exist_ok=True)
     seed_values = per_seed(metrics, tests)
@@ -660,7 +791,7 @@ def write_report(results: str | Path, out: str | Path | None = None, title: str 
         Figure("fig4_test.png", "Test success rate and steps to reach (paper Fig. 4).",
                lambda: fig_test(table, seed_values, out / "fig4_test.png"), "grid" in protocols),
         Figure("fig5_arbitration.png", "APAC habitual vs planning actions per episode (paper Fig. 5).",
-               lambda: fig_arbitration(metrics, out / "fig5_arbitration.png"), "apac" in set(metrics["agent"])),
+               lambda: fig_arbitration(metrics, out / "fig5_arbitration.png"), bool(_arbitrating(metrics))),
         Figure("fig6_steps_time.png", "Action steps and time per episode, planning = 3x habit (paper Fig. 6).",
                lambda: fig_steps_time(metrics, out / "fig6_steps_time.png")),
         Figure("fig7_trajectories.png", "Reaching trajectories to the test targets (paper Fig. 7).",
@@ -674,6 +805,9 @@ def write_report(results: str | Path, out: str | Path | None = None, title: str 
     if all(c in metrics and metrics[c].notna().any() for c, _ in LOSSES):  # older results lack the columns
         figures.append(Figure("fig10_losses.png", "Training losses per episode (not in the paper).",
                               lambda: fig_losses(metrics, out / "fig10_losses.png")))
+    data = ReportData(results, metrics, tests, seed_values, table)
+    figures += [Figure(f.file, f.caption, lambda f=f: f.draw(data, out / f.file), bool(f.applies(data)))
+                for f in _FIGURES.values()]
     for f in figures:
         (out / f.file).unlink(missing_ok=True)  # a figure without data this time must not linger
         if f.has_data and draw:
@@ -692,7 +826,7 @@ def _markdown(title: str | None, manifest: dict, metrics: pd.DataFrame, table: p
     if preset.get("description"):
         lines += [preset["description"], ""]
     lines += [f"Agents: {', '.join(AGENT_LABEL[a] for a in _agents(metrics))}. "
-              f"Conditions: {'; '.join(COND_SHORT[c] + ' = ' + COND_LABEL[c] for c in _conditions(metrics))}. "
+              f"Conditions: {'; '.join(_cond_short(c) + ' = ' + _cond_label(c) for c in _conditions(metrics))}. "
               f"{len(seeds)} seeds, {_episodes(episodes)} of training per seed.", "",
               "Every number is computed per seed, then averaged over seeds. **Intervals** (95%, the same in the "
               f"figures): a percentile bootstrap over seeds ({BOOTSTRAP_RESAMPLES} resamples), which stays inside "
@@ -714,7 +848,7 @@ def _markdown(title: str | None, manifest: dict, metrics: pd.DataFrame, table: p
     for r in table.itertuples():
         ci = "-" if math.isnan(r.ci95_low) else f"[{_fmt(r.ci95_low)}, {_fmt(r.ci95_high)}]"
         samples = _samples(r.samples, r.samples_of)
-        row = (f"| {r.figure} | {r.description} ({r.unit}) | {AGENT_LABEL[r.agent]} | {COND_SHORT[r.condition]} "
+        row = (f"| {r.figure} | {r.description} ({r.unit}) | {AGENT_LABEL[r.agent]} | {_cond_short(r.condition)} "
                f"| {r.n_seeds} | {samples} | {_fmt(r.mean)} | {ci} |")
         row += f" {r.per_seed} |" if show_seeds else ""
         lines.append(row + f" {r.paper or '-'} |")

@@ -1,8 +1,12 @@
-"""One agent-environment step, shared by training, evaluation and recordings.
+"""The episode loop and one agent-environment step, shared by training, evaluation and recordings.
 
-:func:`agent_step` is the body of Algorithm 2's inner loop up to the store:
-arbitrate between the actor and the inverse model (plus OU noise), feed the
-action and the current arm estimate to the forward model, step the plant,
+:class:`EpisodeLoop` is the one place that carries per-member state between
+steps (:class:`EpisodeState`: the state estimate, step, TD errors, vision,
+forward-model error, counts) and builds the arbitrator's
+:class:`~apac_mj.arbitrator.ArbitrationContext` from it; the arbitrator's
+choice between the actor and the inverse model (plus OU noise) is
+:func:`select_action`. :func:`agent_step` is the body of Algorithm 2's inner
+loop up to the store: feed the action and the current arm estimate to the forward model, step the plant,
 integrate (observed position with vision, the forward model's prediction
 without), build ``s_{t+1}`` and compute this transition's TD error ``delta``
 on the executable part of the command (:meth:`Agent.executable`, what the
@@ -13,8 +17,8 @@ critic and the forward model learn from)
     on_step(info: StepInfo, vec_env: VecEnv) -> None
     on_episode_start(members: np.ndarray, vec_env: VecEnv) -> None   # members: [E] bool, just reset
 
-Both hooks are accepted by :func:`apac_mj.trainer.train` and by the
-evaluation runners in :mod:`apac_mj.evaluate`.
+Both hooks are accepted by :func:`apac_mj.trainer.train`, :func:`apac_mj.evaluate.evaluate`
+and the loop itself.
 
 What the agent perceives: with vision, the environment's reward and
 termination; without vision (occluded), the reward and termination of its
@@ -24,12 +28,12 @@ zone"), so nothing true leaks after step 0.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable, Protocol
+from typing import Any, Callable, Iterator
 
 import numpy as np
 import torch
 
-from apac_mj.arbitrator import Arbitrator
+from apac_mj.arbitrator import HISTORY, ArbitrationContext, Arbitrator, push_delta
 from apac_mj.integrator import integrate
 from apac_mj.suite.planar_arm import ACTION_BOUND
 from apac_mj.vec_env import Observation, VecEnv
@@ -63,12 +67,9 @@ class StepInfo:
     terminal: np.ndarray       # [E] bool: the transition is terminal for learning (perceived reach)
 
 
-class StepHook(Protocol):
-    def __call__(self, info: StepInfo, vec_env: VecEnv) -> None: ...
-
-
-class EpisodeStartHook(Protocol):
-    def __call__(self, members: np.ndarray, vec_env: VecEnv) -> None: ...
+#: Hooks: ``on_step(info, vec_env)`` after every step, ``on_episode_start(members [E] bool, vec_env)`` after resets.
+OnStep = Callable[[StepInfo, VecEnv], None]
+OnEpisodeStart = Callable[[np.ndarray, VecEnv], None]
 
 
 def observed_state(obs: Observation, device: torch.device) -> torch.Tensor:
@@ -76,36 +77,173 @@ def observed_state(obs: Observation, device: torch.device) -> torch.Tensor:
     return torch.as_tensor(np.concatenate([obs.arm, obs.target], axis=1), dtype=torch.float32, device=device)
 
 
-def select_action(agent: Any, arbitrator: Arbitrator, state: torch.Tensor, episode: np.ndarray,
-                  step: np.ndarray, last_delta: np.ndarray, active: np.ndarray,
+@dataclasses.dataclass(kw_only=True)
+class EpisodeState:
+    """What every member carries from step to step within its episode (the one copy of this bookkeeping)."""
+
+    state: torch.Tensor          # [E, 6] the integrator's state estimate the agent acts on
+    step: np.ndarray             # [E] steps taken in the current episode
+    last_delta: np.ndarray       # [E] TD error of the member's last transition (NaN: none this episode)
+    ret: np.ndarray              # [E] return so far in the episode
+    habit_n: np.ndarray          # [E] habitual actions counted this episode
+    plan_n: np.ndarray           # [E] planning actions counted this episode
+    recent_deltas: np.ndarray | None = None  # [E, HISTORY] this episode's last TD errors, oldest first (NaN pad)
+    vision: np.ndarray | None = None         # [E] bool: the current state was seen
+    forward_error: np.ndarray | None = None  # [E] forward model's error at the last seen step (cm; NaN: none)
+
+    def __post_init__(self) -> None:
+        E = len(self.step)
+        self.recent_deltas = np.full((E, HISTORY), np.nan) if self.recent_deltas is None else self.recent_deltas
+        self.vision = np.ones(E, dtype=bool) if self.vision is None else self.vision
+        self.forward_error = np.full(E, np.nan) if self.forward_error is None else self.forward_error
+
+    @staticmethod
+    def fresh_fields(E: int, device: torch.device) -> dict[str, Any]:
+        """Keyword arguments of a carry at the start of nothing (every member to be reset)."""
+        return dict(state=torch.zeros(E, 6, device=device), step=np.zeros(E, dtype=np.int64),
+                    last_delta=np.full(E, np.nan), ret=np.zeros(E), habit_n=np.zeros(E, dtype=np.int64),
+                    plan_n=np.zeros(E, dtype=np.int64))
+
+    @classmethod
+    def fresh(cls, E: int, device: torch.device) -> "EpisodeState":
+        return cls(**cls.fresh_fields(E, device))
+
+    def reset(self, mask: np.ndarray, seen: torch.Tensor) -> None:
+        """Start a new episode for the members in ``mask`` from the ``seen`` state ``[E, 6]``."""
+        rows = torch.as_tensor(mask, device=self.state.device)
+        self.state = torch.where(rows[:, None], seen, self.state)
+        self.step[mask], self.last_delta[mask], self.ret[mask] = 0, np.nan, 0.0
+        self.habit_n[mask], self.plan_n[mask] = 0, 0
+        self.recent_deltas[mask], self.vision[mask], self.forward_error[mask] = np.nan, True, np.nan
+
+    def advance(self, info: StepInfo, mask: np.ndarray, counted: np.ndarray | None = None,
+                next_state: np.ndarray | None = None) -> None:
+        """Carry the members in ``mask`` past the step in ``info``: state (``next_state``, default the
+        integrator's), TD errors, vision, forward error, return, step; habit/planning counts for ``counted``."""
+        counted = mask if counted is None else counted
+        nxt = torch.as_tensor(info.next_state if next_state is None else next_state, device=self.state.device)
+        self.state = torch.where(torch.as_tensor(mask, device=self.state.device)[:, None], nxt, self.state)
+        self.last_delta = np.where(mask, info.delta, self.last_delta)
+        self.recent_deltas = push_delta(self.recent_deltas, info.delta, mask)
+        error = np.linalg.norm((info.predicted_arm - info.next_state[:, :4]).reshape(-1, 2, 2), axis=-1).mean(-1)
+        self.forward_error = np.where(mask & info.vision, error, self.forward_error)
+        self.vision = np.where(mask, info.vision, self.vision)
+        self.ret += np.where(mask, info.reward, 0.0)
+        self.habit_n += counted & info.habit
+        self.plan_n += counted & ~info.habit
+        self.step += mask
+
+    def context(self, episode: np.ndarray, agent: Any) -> ArbitrationContext:
+        """The arbitrator's view of every member at this step (``episode`` as the arbitrator reads it)."""
+        uncertainty = agent.uncertainty(self.state) if hasattr(agent, "uncertainty") else {}
+        # copies (torch.tensor), not views of the carried arrays: a context kept by a rule stays as it was
+        return ArbitrationContext(episode=torch.tensor(episode), step=torch.tensor(self.step),
+                                  last_delta=torch.tensor(self.last_delta, dtype=torch.float32),
+                                  recent_deltas=torch.tensor(self.recent_deltas, dtype=torch.float32),
+                                  vision=torch.tensor(self.vision), state=self.state, uncertainty=uncertainty,
+                                  forward_error=torch.tensor(self.forward_error, dtype=torch.float32))
+
+
+def select_action(agent: Any, arbitrator: Arbitrator, ctx: ArbitrationContext, active: np.ndarray,
                   explore: bool) -> tuple[torch.Tensor, torch.Tensor]:
     """The arbitrator's choice between the actor's and the inverse model's proposals (+ OU noise)."""
-    habit = arbitrator.use_habit(torch.as_tensor(episode), torch.as_tensor(step),
-                                 torch.as_tensor(last_delta, dtype=torch.float32)).to(state.device)
+    state = ctx.state
+    habit = torch.as_tensor(arbitrator.use_habit(ctx), dtype=torch.bool).to(state.device)
+    if tuple(habit.shape) != (ctx.E,):
+        raise ValueError(f"{type(arbitrator).__name__}.use_habit must return [E] = ({ctx.E},) bools, "
+                         f"got shape {tuple(habit.shape)}")
     proposal = torch.where(habit[:, None], agent.actor_action(state), agent.inverse_action(state))
     if explore:
-        sigma = agent.cfg.ou_sigma_at(np.asarray(episode))
+        sigma = agent.cfg.ou_sigma_at(ctx.episode.numpy())
         proposal = proposal + agent.noise.sample(torch.as_tensor(active), sigma).to(state.device)
     return proposal.clamp(-ACTION_BOUND, ACTION_BOUND), habit
 
 
-def agent_step(agent: Any, arbitrator: Arbitrator, vec_env: VecEnv, state: torch.Tensor, episode: np.ndarray,
-               step: np.ndarray, last_delta: np.ndarray, active: np.ndarray, explore: bool = True,
-               zone_radius: float | None = None, action: torch.Tensor | None = None,
-               habit: torch.Tensor | None = None) -> StepInfo:
-    """One step for the ``active`` members.
+Override = Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
 
-    ``action`` (``[E,2]``) and ``habit`` (``[E]`` bool) given: executed as they are
-    (the trainer's babbling); otherwise the arbitrator selects (:func:`select_action`).
+
+class EpisodeLoop:
+    """The one per-member episode loop shared by training, evaluation and recordings.
+
+    :meth:`start` resets members (environment, carried state, noise, the episode-start hook),
+    :meth:`act` arbitrates and steps (:func:`agent_step`), :meth:`advance` carries the state past
+    the step and calls the step hook; :meth:`begin` and :meth:`steps` (together :meth:`run_episode`)
+    are the frozen episode that evaluation and recordings run.
+    """
+
+    def __init__(self, agent: Any, arbitrator: Arbitrator, env: VecEnv, zone_radius: float | None = None,
+                 on_step: OnStep | None = None, on_episode_start: OnEpisodeStart | None = None) -> None:
+        self.agent, self.arbitrator, self.env, self.zone_radius = agent, arbitrator, env, zone_radius
+        self.on_step, self.on_episode_start = on_step, on_episode_start
+
+    def start(self, st: EpisodeState, mask: np.ndarray, reset_noise: bool = True) -> None:
+        """New episodes for the members in ``mask``: reset their environment and carried state."""
+        obs = self.env.reset(mask)
+        st.reset(mask, observed_state(obs, st.state.device))
+        if reset_noise:
+            self.agent.noise.reset(torch.as_tensor(mask))
+        if self.on_episode_start is not None:
+            self.on_episode_start(mask.copy(), self.env)
+
+    def act(self, st: EpisodeState, active: np.ndarray, episode: np.ndarray, explore: bool,
+            arbitration_episode: np.ndarray | None = None, override: Override | None = None) -> StepInfo:
+        """Arbitrate (the arbitrator reads ``arbitration_episode``, default ``episode``), let ``override``
+        replace the action (the trainer's babbling), step the ``active`` members."""
+        ctx = st.context(episode if arbitration_episode is None else arbitration_episode, self.agent)
+        action, habit = select_action(self.agent, self.arbitrator, ctx, active, explore)
+        if override is not None:
+            action, habit = override(action, habit)
+        return agent_step(self.agent, self.env, st.state, episode, st.step, active, action, habit,
+                          zone_radius=self.zone_radius)
+
+    def advance(self, st: EpisodeState, info: StepInfo, active: np.ndarray, counted: np.ndarray | None = None,
+                next_state: np.ndarray | None = None) -> None:
+        """Carry ``st`` past ``info`` (see :meth:`EpisodeState.advance`), then the step hook."""
+        st.advance(info, active, counted, next_state)
+        if self.on_step is not None:
+            self.on_step(info, self.env)
+
+    def begin(self, members: np.ndarray) -> EpisodeState:
+        """A frozen episode's start for ``members``: a fresh carry, their environments reset (noise untouched)."""
+        st = EpisodeState.fresh(self.env.E, self.agent.device)
+        self.start(st, members, reset_noise=False)
+        return st
+
+    def steps(self, st: EpisodeState, members: np.ndarray, episode: int, arbitration_episode: int | None = None,
+              stop_on_terminal: bool = False) -> Iterator[tuple[StepInfo, np.ndarray]]:
+        """Step a begun frozen episode (no noise, no learning) to its end; yields ``(info, stepped)``.
+
+        A member stops when its episode ends, or also (``stop_on_terminal``) when it judges the target
+        reached (the occluded protocol)."""
+        E = self.env.E
+        running = members.copy()
+        ep = np.full(E, episode)
+        arb = None if arbitration_episode is None else np.full(E, arbitration_episode, dtype=np.int64)
+        while running.any():
+            info = self.act(st, running, ep, explore=False, arbitration_episode=arb)
+            stepped = running.copy()
+            self.advance(st, info, stepped)
+            yield info, stepped
+            running &= ~(info.done | (info.terminal if stop_on_terminal else np.zeros(E, dtype=bool)))
+
+    def run_episode(self, members: np.ndarray, episode: int, arbitration_episode: int | None = None,
+                    stop_on_terminal: bool = False) -> EpisodeState:
+        """:meth:`begin` and every one of :meth:`steps`; returns the carry at the episode's end."""
+        st = self.begin(members)
+        for _ in self.steps(st, members, episode, arbitration_episode, stop_on_terminal):
+            pass
+        return st
+
+
+def agent_step(agent: Any, vec_env: VecEnv, state: torch.Tensor, episode: np.ndarray, step: np.ndarray,
+               active: np.ndarray, action: torch.Tensor, habit: torch.Tensor,
+               zone_radius: float | None = None) -> StepInfo:
+    """One step of the ``active`` members with ``action`` ``[E,2]`` (``habit`` ``[E]``: the actor chose it).
 
     ``zone_radius`` is the radius the agent uses to judge its own estimate
     under occlusion (default: the task's).
     """
     device = state.device
-    if action is None:
-        action, habit = select_action(agent, arbitrator, state, episode, step, last_delta, active, explore)
-    elif habit is None:
-        habit = torch.zeros(vec_env.E, dtype=torch.bool, device=device)
     executable = agent.executable(action, state)  # what the plant will do: every network sees this action
     predicted = agent.predict_arm(state[:, :4], executable)
     obs = vec_env.step(action.detach().cpu().double().numpy(), active)
@@ -137,6 +275,3 @@ def _info(vec_env: VecEnv, obs: Observation, episode, step, active, state, actio
         terminal=_np(terminal).astype(bool), **vec_env.snapshot())
 
 
-#: Hooks as plain callables (the Protocols above document the signatures).
-OnStep = Callable[[StepInfo, VecEnv], None]
-OnEpisodeStart = Callable[[np.ndarray, VecEnv], None]

@@ -45,7 +45,6 @@ from __future__ import annotations
 
 import collections
 import dataclasses
-import io
 import json
 import subprocess
 import sys
@@ -59,10 +58,11 @@ from tqdm.auto import tqdm
 
 from apac_mj import checkpoint
 from apac_mj.agent import Agent
-from apac_mj.arbitrator import Arbitrator
 from apac_mj.config import TrainConfig, task_spec, to_dict
+from apac_mj.files import atomic_write_parquet
+from apac_mj.kinds import arbitrator_for
 from apac_mj.kinematics import Geometry
-from apac_mj.rollout import OnEpisodeStart, OnStep, StepInfo, agent_step, observed_state, select_action
+from apac_mj.rollout import EpisodeLoop, EpisodeState, OnEpisodeStart, OnStep, StepInfo
 from apac_mj.vec_env import VecEnv
 
 #: Episodes (all seeds) in the progress bar's running success rate and habit share.
@@ -83,33 +83,26 @@ def babbling_generators(seeds: list[int]) -> list[torch.Generator]:
 
 
 # -- per-member loop state -----------------------------------------------------------------
-@dataclasses.dataclass
-class LoopState:
-    """Per-member counters of the batched loop; ``episode < 0`` is babbling."""
+@dataclasses.dataclass(kw_only=True)
+class LoopState(EpisodeState):
+    """The episode loop's per-member carry plus the trainer's counters; ``episode < 0`` is babbling."""
 
     episode: np.ndarray      # [E] current episode index (training episodes from 0, babbling negative)
-    step: np.ndarray         # [E] steps taken in the current episode
     need_reset: np.ndarray   # [E] bool
-    last_delta: np.ndarray   # [E] TD error of the member's last transition (NaN: none this episode)
-    ret: np.ndarray          # [E] return so far in the episode
-    habit_n: np.ndarray      # [E] habitual actions this episode
-    plan_n: np.ndarray       # [E] planning actions this episode
-    state: torch.Tensor      # [E, 6] the integrator's state estimate
     loss_sum: np.ndarray | None = None  # [E, 4] sums of this episode's losses (LOSS_NAMES order)
     loss_n: np.ndarray | None = None    # [E] updates counted in loss_sum
     checkpoints_done: int = 0
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         E = len(self.episode)
         self.loss_sum = np.zeros((E, len(LOSS_NAMES))) if self.loss_sum is None else self.loss_sum
         self.loss_n = np.zeros(E, dtype=np.int64) if self.loss_n is None else self.loss_n
 
     @classmethod
     def fresh(cls, E: int, babbling: int, device: torch.device) -> "LoopState":
-        return cls(episode=np.full(E, -babbling, dtype=np.int64), step=np.zeros(E, dtype=np.int64),
-                   need_reset=np.ones(E, dtype=bool), last_delta=np.full(E, np.nan),
-                   ret=np.zeros(E), habit_n=np.zeros(E, dtype=np.int64), plan_n=np.zeros(E, dtype=np.int64),
-                   state=torch.zeros(E, 6, device=device))
+        return cls(episode=np.full(E, -babbling, dtype=np.int64), need_reset=np.ones(E, dtype=bool),
+                   **EpisodeState.fresh_fields(E, device))
 
     def state_dict(self) -> dict[str, Any]:
         d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
@@ -143,14 +136,12 @@ def train(cfg: TrainConfig, out_dir: str | Path, progress: bool = True, on_step:
         say(f"{out_dir} already finished {cfg.episodes} episodes; nothing to train "
             f"(a larger --episodes extends it)")
         return out_dir
-    seeds, E, B = list(cfg.seeds), len(cfg.seeds), cfg.agent.babbling_episodes
-    spec = task_spec(cfg)
-    env = VecEnv(cfg.task, seeds, cfg.actuation,
-                 overrides={**cfg.task_overrides, "growth_start_episode": spec.growth_start_episode + B})
-    agent = Agent(cfg.agent, seeds, device=cfg.device, precision=cfg.precision, geometry=Geometry.from_spec(spec))
-    arbitrator = Arbitrator(cfg.agent)
+    seeds = list(cfg.seeds)
+    env = training_env(cfg)
+    agent = Agent(cfg.agent, seeds, device=cfg.device, precision=cfg.precision,
+                  geometry=Geometry.from_spec(task_spec(cfg)))
     babble_gens = babbling_generators(seeds)
-    loop, rows, saved_at = LoopState.fresh(E, B, agent.device), [], None
+    loop, rows, saved_at = LoopState.fresh(len(seeds), cfg.agent.babbling_episodes, agent.device), [], None
     if checkpoint.run_checkpoints(out_dir / "checkpoints"):
         loop, rows = _restore(out_dir, config, agent, env, babble_gens)
         saved_at = loop.slowest()
@@ -158,37 +149,68 @@ def train(cfg: TrainConfig, out_dir: str | Path, progress: bool = True, on_step:
     _write_config(out_dir, config, run_episodes)
     recorder = _recorder(out_dir, record_every, config)
     on_step, on_episode_start = _chain_hooks(recorder, on_step, on_episode_start)
-    bar = tqdm(total=cfg.episodes, initial=min(loop.slowest(), cfg.episodes), disable=not progress,
-               desc=f"{cfg.agent.agent} {cfg.task} x{E}", unit="ep")
-    window = collections.deque(((r["success"], r["habit_actions"], r["planning_actions"])
-                                for r in rows if r["phase"] == "train"), maxlen=PROGRESS_WINDOW * E)
+    episodes = EpisodeLoop(agent, arbitrator_for(cfg.agent), env, on_step=on_step,
+                           on_episode_start=on_episode_start)
+    bar, window = _progress_bar(cfg, loop, rows, progress)
+    saved = _Saved(saved_at)
     try:
-        while (active := loop.episode < cfg.episodes).any():
-            _start_episodes(loop, active, env, agent, on_episode_start)
-            info = _step(cfg, loop, active, env, agent, arbitrator, babble_gens)
-            if on_step is not None:
-                on_step(info, env)
-            for row in _finish_episodes(loop, info, seeds):
-                rows.append(row)
-                if row["phase"] == "train":
-                    window.append((row["success"], row["habit_actions"], row["planning_actions"]))
-            _progress(bar, loop, cfg.episodes, window)
-            if loop.slowest() // cfg.checkpoint_every > loop.checkpoints_done:
-                loop.checkpoints_done = loop.slowest() // cfg.checkpoint_every
-                _save(out_dir, config, loop, agent, env, babble_gens, rows)
-                saved_at = loop.slowest()
-        if saved_at != loop.slowest():  # not saved just now by the periodic checkpoint
+        _loop(cfg, out_dir, config, loop, rows, saved, episodes, babble_gens, bar, window)
+        if saved.at != loop.slowest():  # not saved just now by the periodic checkpoint
             _save(out_dir, config, loop, agent, env, babble_gens, rows)
         checkpoint.atomic_write_bytes(out_dir / "DONE", lambda f: f.write(b"done\n"))
     except KeyboardInterrupt:
         bar.close()
-        _say_interrupted(out_dir, saved_at, cfg)
+        _say_interrupted(out_dir, saved.at, cfg)
         raise
     finally:
         bar.close()
         if recorder is not None:
             recorder.close()
     return out_dir
+
+
+def training_env(cfg: TrainConfig) -> VecEnv:
+    """The run's environments as training builds them: changing kinematics start after
+    ``growth_start_episode`` *training* episodes, so the environment's threshold (which counts every
+    reset) is shifted by the babbling count here, and only here."""
+    growth = task_spec(cfg).growth_start_episode + cfg.agent.babbling_episodes
+    return VecEnv(cfg.task, list(cfg.seeds), cfg.actuation,
+                  overrides={**cfg.task_overrides, "growth_start_episode": growth})
+
+
+@dataclasses.dataclass
+class _Saved:
+    """Training episodes (of the slowest member) in the newest checkpoint of this call; None: none yet."""
+
+    at: int | None
+
+
+def _progress_bar(cfg: TrainConfig, loop: LoopState, rows: list[dict[str, Any]],
+                  progress: bool) -> tuple[tqdm, collections.deque]:
+    """The episode bar and its window of the last episodes' (success, habit, planning) of all seeds."""
+    bar = tqdm(total=cfg.episodes, initial=min(loop.slowest(), cfg.episodes), disable=not progress,
+               desc=f"{cfg.agent.agent} {cfg.task} x{len(cfg.seeds)}", unit="ep")
+    window = collections.deque(((r["success"], r["habit_actions"], r["planning_actions"])
+                                for r in rows if r["phase"] == "train"), maxlen=PROGRESS_WINDOW * len(cfg.seeds))
+    return bar, window
+
+
+def _loop(cfg: TrainConfig, out_dir: Path, config: dict[str, Any], loop: LoopState, rows: list[dict[str, Any]],
+          saved: _Saved, episodes: EpisodeLoop, babble_gens: list[torch.Generator], bar: tqdm,
+          window: collections.deque) -> None:
+    """Episodes until every member finished ``cfg.episodes``, with the periodic checkpoints (``saved``)."""
+    while (active := loop.episode < cfg.episodes).any():
+        _start_episodes(loop, active, episodes)
+        info = _step(cfg, loop, active, episodes, babble_gens)
+        for row in _finish_episodes(loop, info, list(cfg.seeds)):
+            rows.append(row)
+            if row["phase"] == "train":
+                window.append((row["success"], row["habit_actions"], row["planning_actions"]))
+        _progress(bar, loop, cfg.episodes, window)
+        if loop.slowest() // cfg.checkpoint_every > loop.checkpoints_done:
+            loop.checkpoints_done = loop.slowest() // cfg.checkpoint_every
+            _save(out_dir, config, loop, episodes.agent, episodes.env, babble_gens, rows)
+            saved.at = loop.slowest()
 
 
 def say(message: str) -> None:
@@ -218,38 +240,28 @@ def _check_record_every(record_every: int | None) -> None:
         raise ValueError(f"record_every must be >= 1, got {record_every}")
 
 
-def _start_episodes(loop: LoopState, active: np.ndarray, env: VecEnv, agent: Agent,
-                    on_episode_start: OnEpisodeStart | None) -> None:
+def _start_episodes(loop: LoopState, active: np.ndarray, episodes: EpisodeLoop) -> None:
     """Reset the members whose episode ended: environment, state estimate, noise, counters."""
     starting = active & loop.need_reset
     if not starting.any():
         return
-    obs = env.reset(starting)
-    rows = torch.as_tensor(starting, device=loop.state.device)
-    loop.state = torch.where(rows[:, None], observed_state(obs, loop.state.device), loop.state)
-    agent.noise.reset(torch.as_tensor(starting))
-    loop.step[starting], loop.last_delta[starting], loop.ret[starting] = 0, np.nan, 0.0
-    loop.habit_n[starting], loop.plan_n[starting], loop.need_reset[starting] = 0, 0, False
+    episodes.start(loop, starting)
+    loop.need_reset[starting] = False
     loop.loss_sum[starting], loop.loss_n[starting] = 0.0, 0
-    if on_episode_start is not None:
-        on_episode_start(starting.copy(), env)
 
 
-def _step(cfg: TrainConfig, loop: LoopState, active: np.ndarray, env: VecEnv, agent: Agent,
-          arbitrator: Arbitrator, babble_gens: list[torch.Generator]) -> StepInfo:
+def _step(cfg: TrainConfig, loop: LoopState, active: np.ndarray, episodes: EpisodeLoop,
+          babble_gens: list[torch.Generator]) -> StepInfo:
     """Act (arbitrated, or random while babbling), step, store, update once; advance the loop state."""
+    agent, env = episodes.agent, episodes.env
     babbling = active & (loop.episode < 0)
-    action, habit = select_action(agent, arbitrator, loop.state, loop.episode, loop.step, loop.last_delta,
-                                  active, explore=True)
-    if babbling.any():
-        action, habit = _babbling_action(cfg, action, habit, babbling, babble_gens)
+    override = (lambda a, h: _babbling_action(cfg, a, h, babbling, babble_gens)) if babbling.any() else None
     angles_before = env.joint_angles()
-    info = agent_step(agent, arbitrator, env, loop.state, loop.episode, loop.step, loop.last_delta, active,
-                      action=action, habit=habit)
+    info = episodes.act(loop, active, loop.episode, explore=True, override=override)
     s, s2, r, done = _transition(info, babbling)
     dev = agent.device
     executed = torch.as_tensor(info.joint_angles - angles_before, dtype=torch.float32, device=dev)
-    learned = executed if cfg.agent.critic_action == "executed" else action.to(dev, torch.float32)
+    learned = executed if cfg.agent.critic_action == "executed" else torch.as_tensor(info.action, device=dev)
     agent.replay.add(torch.as_tensor(s, device=dev), learned, torch.as_tensor(r, device=dev),
                      torch.as_tensor(s2, device=dev), torch.as_tensor(done, device=dev), torch.as_tensor(active),
                      executed_action=executed)
@@ -259,14 +271,7 @@ def _step(cfg: TrainConfig, loop: LoopState, active: np.ndarray, env: VecEnv, ag
         updated = np.isfinite(values).all(axis=1)
         loop.loss_sum[updated] += values[updated]
         loop.loss_n += updated
-    act_rows = torch.as_tensor(active, device=dev)
-    loop.state = torch.where(act_rows[:, None], torch.as_tensor(s2, device=dev), loop.state)
-    loop.last_delta = np.where(active, info.delta, loop.last_delta)
-    loop.ret += np.where(active, info.reward, 0.0)
-    counted = active & ~babbling
-    loop.habit_n += counted & info.habit
-    loop.plan_n += counted & ~info.habit
-    loop.step += active
+    episodes.advance(loop, info, active, counted=active & ~babbling, next_state=s2)
     return info
 
 
@@ -343,7 +348,7 @@ def _prepare_run_dir(cfg: TrainConfig, out_dir: Path) -> tuple[dict[str, Any], i
     Returns the config and the episode count of the run already there (None: a new run). The same
     config with more episodes extends a run; any other difference is refused.
     """
-    _validate(cfg)
+    validate(cfg)
     config = config_dict(cfg)
     path = out_dir / "config.json"
     if not path.is_file():
@@ -396,7 +401,8 @@ def _diff(old: dict[str, Any], new: dict[str, Any], prefix: str = "") -> list[st
     return out
 
 
-def _validate(cfg: TrainConfig) -> None:
+def validate(cfg: TrainConfig) -> None:
+    """Refuse a run configuration that cannot run here (a ValueError naming the field); writes nothing."""
     if not cfg.seeds:
         raise ValueError("at least one seed is needed")
     if any(not isinstance(s, (int, np.integer)) or s < 0 for s in cfg.seeds) or len(set(cfg.seeds)) != len(cfg.seeds):
@@ -430,12 +436,28 @@ def check_device(device: str) -> None:
         raise ValueError(f"device {device!r}: this machine has {torch.cuda.device_count()} CUDA device(s)")
 
 
+def metric_rows(run_dir: str | Path) -> int:
+    """Rows in RUN_DIR/metrics.parquet (0 if none yet), read from the file's footer."""
+    import pyarrow.parquet as pq
+
+    path = Path(run_dir) / "metrics.parquet"
+    return pq.ParquetFile(path).metadata.num_rows if path.is_file() else 0
+
+
+def run_summary(run_dir: str | Path, last: int = 100) -> dict[str, Any]:
+    """Episodes, seeds, and the success rate and habit share over each seed's ``last`` training episodes."""
+    df = pd.read_parquet(Path(run_dir) / "metrics.parquet")
+    tr = df[df.phase == "train"]
+    late = tr[tr.episode >= tr.episode.max() - (last - 1)]
+    acts = late.habit_actions.sum() + late.planning_actions.sum()
+    return {"episodes": int(tr.episode.max()) + 1, "seeds": int(df.seed.nunique()),
+            f"success_rate_last_{last}": round(float(late.success.mean()), 4),
+            f"habit_share_last_{last}": round(float(late.habit_actions.sum() / max(1, acts)), 4)}
+
+
 def write_metrics(path: Path, rows: list[dict[str, Any]]) -> None:
     """Atomically write the metric rows as parquet (columns: METRIC_COLUMNS)."""
-    df = pd.DataFrame(rows, columns=list(METRIC_COLUMNS))
-    buf = io.BytesIO()
-    df.to_parquet(buf, index=False)
-    checkpoint.atomic_write_bytes(path, lambda f: f.write(buf.getvalue()))
+    atomic_write_parquet(path, pd.DataFrame(rows, columns=list(METRIC_COLUMNS)))
 
 
 def _save(out_dir: Path, config: dict[str, Any], loop: LoopState, agent: Agent, env: VecEnv,
@@ -520,8 +542,7 @@ def _recorder(out_dir: Path, record_every: int | None, config: dict[str, Any]) -
     if record_every is None:
         return None
     from apac_mj import recording
-    if not hasattr(recording, "EpisodeRecorder"):
-        raise RuntimeError("--record-every needs apac_mj.recording.EpisodeRecorder, which this version lacks")
+
     return recording.EpisodeRecorder(out_dir / "recordings", record_every=record_every, config=config)
 
 

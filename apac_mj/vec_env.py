@@ -143,10 +143,6 @@ class VecEnv:
         """``[E, 2]`` the lengths the physics has now (they grow under changing kinematics)."""
         return np.stack([e.physics.link_lengths() for e in self.envs])
 
-    def task_link_lengths(self) -> np.ndarray:
-        """``[E, 2]`` the lengths each task will use at its next reset."""
-        return np.stack([e.task.link_lengths for e in self.envs])
-
     # -- exact save / restore ----------------------------------------------------------
     def get_state(self) -> dict[str, Any]:
         """Everything that evolves, as tensors and lists (``weights_only``-safe)."""
@@ -193,7 +189,7 @@ def _set_member_state(env, s: dict[str, Any]) -> None:
     p.plane_size = task.spec.plane_size
     p.set_origin(s["origin"].numpy())
     p.set_zone_radius(float(s["zone_radius"]))
-    p.set_joint_limits(task.spec.at_limit == "clip")
+    p.set_joint_limits(task.spec.at_limit == "clip", task.spec.joint_range)
     p.set_link_lengths(*(float(v) for v in s["link_lengths"]))
     p.set_target(s["target"].numpy())
     p.set_state(s["mj_state"].numpy(), sig=_SIG)

@@ -2,7 +2,7 @@
 import pytest
 
 from apac_mj import cli, kinematics
-from apac_mj.kinematics_check import check_kinematics
+from apac_mj.suite.kinematics_check import check_kinematics
 
 @pytest.mark.parametrize("actuation", ["servo", "kinematic"])
 def test_arm_matches_motion_function(actuation):

@@ -8,7 +8,8 @@ import pytest
 import torch
 
 from apac_mj.agent import _member_adam, member_generators
-from apac_mj.arbitrator import Arbitrator
+from apac_mj.arbitrator import ArbitrationContext
+from apac_mj.kinds import arbitrator_for
 from apac_mj.buffer import EnsembleReplay
 from apac_mj.config import AgentConfig
 from apac_mj.integrator import integrate
@@ -149,19 +150,20 @@ def test_replay_bad_shape_and_empty():
     ("apac", [False, True, True, True, True, False]),
 ])
 def test_arbitrator_decision_table(mode, expected):
-    arb = Arbitrator(AgentConfig(agent=mode))
+    arb = arbitrator_for(AgentConfig(agent=mode))
     episode = torch.tensor([50, 100, 100, 150, 100, 150])
     step = torch.tensor([0, 0, 1, 1, 2, 5])
     delta = torch.tensor([0.1, 5.0, 0.5, -3.0, -0.99, 1.0])
-    assert arb.use_habit(episode, step, delta).tolist() == expected
+    assert arb.use_habit(ArbitrationContext(episode, step, delta)).tolist() == expected
 
 
 def test_arbitrator_apac_planning_phase_and_nan():
-    arb = Arbitrator(AgentConfig(agent="apac"))
-    assert arb.use_habit(torch.tensor([99, 99]), torch.tensor([0, 5]), torch.tensor([0.0, 0.0])).tolist() == [False, False]
-    assert arb.use_habit(torch.tensor([200]), torch.tensor([3]), torch.tensor([float("nan")])).tolist() == [False]
+    arb = arbitrator_for(AgentConfig(agent="apac"))
+    ctx = ArbitrationContext
+    assert arb.use_habit(ctx(torch.tensor([99, 99]), torch.tensor([0, 5]), torch.tensor([0.0, 0.0]))).tolist() == [False, False]
+    assert arb.use_habit(ctx(torch.tensor([200]), torch.tensor([3]), torch.tensor([float("nan")]))).tolist() == [False]
     with pytest.raises(ValueError, match="equal length"):
-        arb.use_habit(torch.tensor([1, 2]), torch.tensor([1]), torch.tensor([0.0]))
+        arb.use_habit(ctx(torch.tensor([1, 2]), torch.tensor([1]), torch.tensor([0.0])))
 
 
 def test_integrator():

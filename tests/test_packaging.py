@@ -32,7 +32,7 @@ def test_wheel_contains_model_and_task_files(wheel):
     names = set(zipfile.ZipFile(wheel).namelist())
     assert "apac_mj/assets/planar_arm.xml" in names
     tasks = {p.name for p in (REPO / "tasks").glob("*.toml")}
-    assert len(tasks) == 12
+    assert {"static_target.toml", "changing_target_changing_kinematics_occluded.toml"} <= tasks  # every file, below
     assert {f"apac_mj/tasks/{t}" for t in tasks} <= names
     presets = {p.name for p in (REPO / "tasks" / "presets").glob("*.toml")}
     assert {"paper.toml", "quick.toml", "smoke.toml", "demo.toml"} <= presets

@@ -30,8 +30,36 @@ for _task in TASKS:
 
 
 def test_all_tasks_listed():
-    assert len(TASKS) == 12
+    """Every file in tasks/ is a task; the paper's conditions are there with their occluded and train-region
+    variants (the grid's suffix convention). Properties, not a count: adding a task file keeps this green."""
+    from apac_mj.presets import CONDITIONS
+    from apac_mj.suite.task_spec import task_names
+
+    assert sorted(TASKS) == task_names() and len(set(TASKS)) == len(TASKS)
+    assert {c + suffix for c in CONDITIONS for suffix in ("", "_occluded", "_train_region")} <= set(TASKS)
     assert {"static_target", "changing_target_changing_kinematics_occluded"} <= set(TASKS)
+
+
+@pytest.mark.parametrize("task", TASKS)
+def test_task_files_state_only_what_differs_from_the_defaults(task):
+    """Each key a task file sets (but its description) changes a TaskSpec default; the name tells which."""
+    import dataclasses
+    import tomllib
+
+    from apac_mj import paths
+    from apac_mj.suite.task_spec import TaskSpec, load_task
+
+    spec, default = load_task(task), TaskSpec(name=task)
+    data = tomllib.loads((paths.tasks_dir() / f"{task}.toml").read_text())
+    stated = {f"{sec}.{k}" for sec, table in data.items() if isinstance(table, dict) for k in table}
+    changed = [f.name for f in dataclasses.fields(spec) if f.name not in ("name", "description")
+               and getattr(spec, f.name) != getattr(default, f.name)]
+    assert len(stated) == len(changed), f"{task}.toml restates a default: {sorted(stated)} vs changed {changed}"
+    assert spec.description
+    assert (spec.target_mode == "static") == task.startswith("static_target")
+    assert (spec.kinematics_mode == "changing") == ("changing_kinematics" in task)
+    assert spec.occluded == task.endswith("_occluded")
+    assert (spec.target_region == "train") == task.endswith("_train_region")
 
 
 @pytest.mark.parametrize("task", TASKS)

@@ -105,3 +105,15 @@ def test_replace_checks_overrides():
         spec.replace(colour="red")
     with pytest.raises(TaskSpecError, match="vision must be one of"):
         spec.replace(vision="x-ray")
+
+
+def test_tasks_command_lists_every_task_and_shows_one(capsys):
+    from apac_mj.cli import main
+    from apac_mj.suite.task_spec import task_names
+
+    assert main(["tasks"]) == 0
+    listed = [line.split()[0] for line in capsys.readouterr().out.splitlines()]
+    assert listed == task_names()
+    assert main(["tasks", "--show", "static_target_occluded"]) == 0
+    shown = dict(line[2:].split(" = ", 1) for line in capsys.readouterr().out.splitlines())
+    assert shown["vision"] == "'occluded'" and shown["origin"] == "(15.0, 15.0)" and shown["joint_range"] == "(0.0, 180.0)"

@@ -149,7 +149,8 @@ def test_parse_seeds():
 
     assert parse_seeds("0-3") == (0, 1, 2, 3)
     assert parse_seeds("0,3,5") == (0, 3, 5)
-    assert parse_seeds("7") == (7,)
+    assert parse_seeds("7") == tuple(range(7))  # one seed grammar with grid --set seeds=7 (issue 10)
+    assert parse_seeds("7-7") == (7,)
     for bad in ("a", "3-1", "1,1", "-2"):
         with pytest.raises(ValueError, match="--seeds"):
             parse_seeds(bad)

@@ -26,7 +26,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from apac_mj.kinematics_check import check_kinematics
+    from apac_mj.suite.kinematics_check import check_kinematics
     from apac_mj.suite import load_spec
     from apac_mj.suite.regions import region_stats
 

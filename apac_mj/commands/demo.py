@@ -24,7 +24,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--preset", default="demo", help="preset name or .toml path (default: demo)")
     p.add_argument("--out", default="results/demo", help="results directory (default: results/demo)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a preset field, repeatable (e.g. seeds=3, episodes=300)")
+                   help="override a preset field, repeatable (the grammar of grid --set, fields listed in "
+                        "apac-mj grid --help; e.g. seeds=3, episodes=300)")
     p.add_argument("--record-episodes", type=int, default=3,
                    help="episodes of the trained APAC to record (default 3; 0 = no recording)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
@@ -32,33 +33,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import time
-    from pathlib import Path
+    from apac_mj.demo import run_demo
 
-    from apac_mj import grid
-    from apac_mj.cli import main as cli_main
-    from apac_mj.executors import LocalExecutor
-    from apac_mj.report import write_report
-
-    if args.record_episodes < 0:
-        raise ValueError(f"--record-episodes must be >= 0, got {args.record_episodes}")
-    start = time.perf_counter()
-    preset = grid.load_preset(args.preset, args.overrides)
-    out = Path(args.out)
-    print(grid.describe(preset))
-    grid.run_grid(preset, out, LocalExecutor(), progress=not args.no_progress)
-    report_dir = write_report(out)
-    rrd = None
-    apac = [c for c in grid.cells(preset) if c.agent == "apac" and c.region == "all"]
-    if args.record_episodes and apac:
-        rrd = out / f"{apac[0].name}.rrd"
-        code = cli_main(["record", "--run", str(out / apac[0].name), "--episodes", str(args.record_episodes),
-                         "--out", str(rrd)])
-        if code != 0:
-            raise RuntimeError(f"recording the trained APAC failed (exit {code})")
-    print(f"\ndemo finished in {time.perf_counter() - start:.0f} s")
-    print(f"figures:   {report_dir}/fig*.png")
-    print(f"table:     {report_dir / 'report.md'} (and key_numbers.csv)")
-    if rrd is not None:
-        print(f"recording: {rrd}  (open with: rerun {rrd})")
+    result = run_demo(args.preset, args.out, args.overrides, record_episodes=args.record_episodes,
+                      progress=not args.no_progress, say=print)
+    print(f"\ndemo finished in {result.wall_s:.0f} s")
+    print(f"figures:   {result.report_dir}/fig*.png")
+    print(f"table:     {result.report_dir / 'report.md'} (and key_numbers.csv)")
+    if result.recording is not None:
+        print(f"recording: {result.recording}  (open with: rerun {result.recording})")
     return 0

@@ -17,18 +17,33 @@ all else the same) extends finished cells and tests them again; any other change
 (copy one and edit it); docs/experiments.md describes the fields and the results layout."""
 
 
+def fields_help() -> str:
+    """Every key a preset (and --set) takes, with its doc: preset, [tests], run and [agent] fields."""
+    from apac_mj.config import AgentConfig, TrainConfig
+    from apac_mj.overrides import field_help
+    from apac_mj.presets import Preset, Tests
+
+    return ("Preset fields:\n" + field_help(Preset, skip=("name", "run", "agent", "tests"))
+            + "\n\n[tests] fields (tests.NAME=VALUE):\n" + field_help(Tests, prefix="tests.")
+            + "\n\nRun fields (TrainConfig; the paper's 50 seeds unless set):\n"
+            + field_help(TrainConfig, skip=("task", "agent"))
+            + "\n\n[agent] fields (AgentConfig; agent.NAME=VALUE or NAME=VALUE):\n"
+            + field_help(AgentConfig, prefix="agent.", skip=("agent",)))
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("grid", help="run the paper's experiment grid (train + test every cell, resumable)",
                        description="Train every (agent, condition) cell of a preset as one ensemble job, then run its "
                                    "frozen-network tests; results go to --out, one sub-directory per cell.",
-                       epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+                       epilog=EPILOG + "\n\n" + fields_help(), formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--preset", default="quick",
                    help="preset name in tasks/presets/ (paper, quick, smoke, demo) or a path to a .toml file "
                         "(default: quick)")
     p.add_argument("--out", default=None, help="results directory (default: results/<preset name>)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a preset field, repeatable: seeds=0-2, episodes=50, agents=ddpg,apac, "
-                        "tests.occluded=false, agent.batch_size=64")
+                   help="override a preset field (listed below; the grammar of train --set), repeatable: "
+                        "seeds=0-2, episodes=50, agents=ddpg,apac, tests.occluded=false, agent.batch_size=64, "
+                        "actor_hidden=64,64. Bad values are refused before anything runs")
     p.add_argument("--executor", choices=("local", "ray"), default="local",
                    help="local: this machine, no service needed (default); ray: one Ray task per cell")
     p.add_argument("--ray-address", default=None,

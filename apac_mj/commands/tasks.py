@@ -11,13 +11,18 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "fraction of the reachable area in the test region and how many of the 100 "
                                    "angle-grid test targets fall in it.")
     p.add_argument("--regions", action="store_true", help="measure the test region of each task (a few seconds)")
+    p.add_argument("--show", metavar="NAME", default=None,
+                   help="print every value of task NAME (its file states only what differs from the defaults)")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     from apac_mj.suite.regions import region_stats
-    from apac_mj.suite.task_spec import load_task, task_names
+    from apac_mj.suite.task_spec import describe, load_task, task_names
 
+    if args.show is not None:
+        print(describe(load_task(args.show)))
+        return 0
     for name in task_names():
         s = load_task(name)
         line = (f"{name:48s} target={s.target_mode:8s} kinematics={s.kinematics_mode:8s} "

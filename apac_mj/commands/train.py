@@ -4,7 +4,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-from typing import Any
 
 EPILOG = """\
 examples:
@@ -25,32 +24,41 @@ warning, to checkpoints/previous.pt. Everything is checked before the directory 
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from apac_mj.config import AGENTS
+    from apac_mj import kinds
+    from apac_mj.config import AgentConfig, TrainConfig
+    from apac_mj.overrides import field_docs, field_help
 
+    d, doc = TrainConfig(), field_docs(TrainConfig)
     p = sub.add_parser("train", help="train an ensemble of seeds on a task (resumable run directory)",
-                       description="Train DDPG, SPAC or APAC on one task, every seed as an independent member of "
-                                   "one batched ensemble: motor babbling first, then the training episodes. "
-                                   "Shows a progress bar (episodes of the slowest seed, success rate and habit "
-                                   "share over the last 20 episodes of all seeds).",
-                       epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--task", default="changing_target", help="task name (a file in tasks/; see apac-mj tasks)")
-    p.add_argument("--agent", choices=AGENTS, default="apac",
-                   help="ddpg: always the actor; spac: always the inverse model; apac: the arbitrator decides")
-    p.add_argument("--seeds", default="0", help="seeds: a range '0-9' (inclusive), a list '0,3,5' or one seed")
-    p.add_argument("--episodes", type=int, default=1000, help="training episodes per seed (default 1000)")
+                       description="Train an agent kind (DDPG, SPAC, APAC or a registered one) on one task, every "
+                                   "seed as an independent member of one batched ensemble: motor babbling first, "
+                                   "then the training episodes. Shows a progress bar (episodes of the slowest seed, "
+                                   "success rate and habit share over the last 20 episodes of all seeds).",
+                       epilog=EPILOG + "\n\nTrainConfig fields (--set KEY=VALUE; the flags above set some of them):\n"
+                       + field_help(TrainConfig, skip=("agent",)) + "\n\nAgentConfig fields (--set NAME=VALUE or "
+                       "agent.NAME=VALUE):\n" + field_help(AgentConfig, skip=("agent",)),
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--task", default=d.task, help=f"{doc['task']} (see apac-mj tasks; default {d.task})")
+    p.add_argument("--agent", choices=kinds.names(), default=kinds.DEFAULT,
+                   help="agent kind (apac_mj.kinds): ddpg: always the actor; spac: always the inverse model; "
+                        f"apac: the arbitrator decides; or a registered one (default {kinds.DEFAULT})")
+    p.add_argument("--seeds", default=None,
+                   help="seeds: N (the seeds 0..N-1), a range '0-9' (inclusive), a list '0,3,5', one seed k as "
+                        "'k-k' (the grammar of grid --set seeds=...; default: seed 0)")
+    p.add_argument("--episodes", type=int, default=d.episodes, help=f"{doc['episodes']} (default {d.episodes})")
     p.add_argument("--out", required=True, help="run directory (created; an existing one is resumed)")
-    p.add_argument("--device", default="cpu", help="cpu or cuda (default cpu)")
-    p.add_argument("--precision", choices=("fp32", "bf16"), default="fp32",
+    p.add_argument("--device", default=d.device, help=f"{doc['device']} (default {d.device})")
+    p.add_argument("--precision", choices=("fp32", "bf16"), default=d.precision,
                    help="fp32 (reference, bit-reproducible on CPU) or bf16 autocast of the matrix products")
-    p.add_argument("--checkpoint-every", type=int, default=50,
-                   help="checkpoint every N episodes of the slowest seed (default 50)")
-    p.add_argument("--actuation", choices=("servo", "kinematic"), default="servo",
+    p.add_argument("--checkpoint-every", type=int, default=d.checkpoint_every,
+                   help=f"{doc['checkpoint_every']} (default {d.checkpoint_every})")
+    p.add_argument("--actuation", choices=("servo", "kinematic"), default=d.actuation,
                    help="servo: MuJoCo position servos (default); kinematic: joint angles written exactly")
     p.add_argument("--record-every", type=int, default=None, metavar="N",
                    help="record every N-th episode to RUN_DIR/recordings/*.rrd (Rerun; apac_mj.recording)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="override an AgentConfig field (apac_mj/config.py), repeatable: batch_size=128, "
-                        "ou_sigma=5, babbling_episodes=20, actor_hidden=64,64")
+                   help="set a TrainConfig or AgentConfig field (listed below), repeatable: batch_size=128, "
+                        "ou_sigma=5, actor_hidden=64,64, agent.babbling_episodes=20, task_overrides={at_limit=\"unbounded\"}")
     p.add_argument("--threads", type=int, default=1,
                    help="torch CPU threads (default 1: these networks are small, and on a busy 2-core machine "
                         "2 threads measured 10-25x slower; raise it for E >= 10 on free cores)")
@@ -59,94 +67,58 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def parse_seeds(text: str) -> tuple[int, ...]:
-    """'0-9' -> 0..9, '0,3,5' -> (0, 3, 5), '4' -> (4,); raises ValueError naming the problem."""
-    text = str(text).strip()
-    try:
-        if "-" in text and "," not in text:
-            a, b = (int(x) for x in text.split("-", 1))
-            if b < a:
-                raise ValueError
-            seeds = tuple(range(a, b + 1))
-        else:
-            seeds = tuple(int(x) for x in text.split(","))
-    except ValueError:
-        raise ValueError(f"--seeds must be a range 'a-b' (a <= b), a list '0,3,5' or one seed, got {text!r}") from None
-    if any(s < 0 for s in seeds) or len(set(seeds)) != len(seeds):
-        raise ValueError(f"--seeds must be distinct non-negative integers, got {text!r}")
-    return seeds
+    """The one seed grammar (apac_mj.overrides.parse_seeds): '4' -> 0..3, '0-9' -> 0..9, '0,3,5', '7-7' -> (7,)."""
+    from apac_mj.overrides import parse_seeds as parse
+
+    return parse(text, "--seeds")
 
 
-def agent_overrides(items: list[str]) -> dict[str, Any]:
-    """``KEY=VALUE`` strings -> AgentConfig keyword arguments (values typed like the field's default)."""
+def agent_overrides(items: list[str]) -> dict:
+    """``KEY=VALUE`` strings (``NAME`` or ``agent.NAME``) -> AgentConfig keyword arguments, in the one
+    --set grammar (apac_mj.overrides): typed by the field, an unknown name or a bad value refused."""
+    from apac_mj import overrides
     from apac_mj.config import AgentConfig
 
-    fields = {f.name: f for f in dataclasses.fields(AgentConfig)}
-    defaults = AgentConfig()
-    out: dict[str, Any] = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        key = key.strip().removeprefix("agent.")
-        if not sep:
-            raise ValueError(f"--set expects KEY=VALUE, got {item!r}")
-        if key not in fields or key == "agent":
-            raise ValueError(f"--set: unknown AgentConfig field {key!r}; known: {', '.join(sorted(set(fields) - {'agent'}))}")
-        out[key] = _typed(value.strip(), getattr(defaults, key), key)
-    return out
+    fields = {f.name for f in dataclasses.fields(AgentConfig)} - {"agent"}
+    data = overrides.apply_sets({}, items, agent_fields=fields, top_level=())
+    stray = sorted(set(data) - {"agent"})
+    if stray:
+        raise overrides.OverrideError(f"--set: unknown AgentConfig field(s) {stray}; known: {', '.join(sorted(fields))}")
+    return overrides.typed_fields(AgentConfig, data.get("agent", {}), "--set agent.", skip=("agent",))
 
 
-def _typed(value: str, default: Any, key: str) -> Any:
-    try:
-        if default is None:  # optional float fields (e.g. ou_sigma_initial)
-            return None if value.lower() == "none" else float(value)
-        if isinstance(default, bool):
-            if value.lower() not in ("true", "false", "1", "0"):
-                raise ValueError
-            return value.lower() in ("true", "1")
-        if isinstance(default, tuple):
-            return tuple(type(default[0])(v) for v in value.strip("()[]").split(","))
-        return type(default)(value)
-    except ValueError:
-        raise ValueError(f"--set {key}: cannot read {value!r} as {type(default).__name__}") from None
+def train_config(args: argparse.Namespace):
+    """The run's TrainConfig: the flags, then every --set (one grammar, typed and checked here)."""
+    from apac_mj import overrides
+    from apac_mj.config import AgentConfig, TrainConfig
+
+    data = {"task": args.task, "episodes": args.episodes, "device": args.device, "precision": args.precision,
+            "checkpoint_every": args.checkpoint_every, "actuation": args.actuation, "agent": {"agent": args.agent}}
+    if args.seeds is not None:
+        data["seeds"] = parse_seeds(args.seeds)
+    agent_fields = {f.name for f in dataclasses.fields(AgentConfig)} - {"agent"}
+    top = {f.name for f in dataclasses.fields(TrainConfig)}
+    overrides.apply_sets(data, args.overrides, agent_fields=agent_fields, top_level=top)
+    if "seeds" in data and not isinstance(data["seeds"], tuple):
+        data["seeds"] = overrides.parse_seeds(data["seeds"])
+    agent = overrides.typed_fields(AgentConfig, data.pop("agent"), "--set agent.")
+    return TrainConfig(agent=AgentConfig(**agent), **overrides.typed_fields(TrainConfig, data, "--set ", skip=("agent",)))
 
 
 def run(args: argparse.Namespace) -> int:
     import torch
 
-    from apac_mj.config import AgentConfig, TrainConfig
-    from apac_mj.trainer import train
+    from apac_mj.trainer import metric_rows, run_summary, train
 
     if args.threads < 1:
         raise ValueError(f"--threads must be >= 1, got {args.threads}")
+    cfg = train_config(args)
     torch.set_num_threads(args.threads)
-    agent = AgentConfig(agent=args.agent, **agent_overrides(args.overrides))
-    cfg = TrainConfig(task=args.task, seeds=parse_seeds(args.seeds), episodes=args.episodes, device=args.device,
-                      precision=args.precision, checkpoint_every=args.checkpoint_every, actuation=args.actuation,
-                      agent=agent)
-    before = _metric_rows(args.out)
+    before = metric_rows(args.out)
     run_dir = train(cfg, args.out, progress=not args.no_progress, record_every=args.record_every)
-    _print_summary(run_dir, trained=_metric_rows(run_dir) != before)
-    return 0
-
-
-def _metric_rows(run_dir) -> int:
-    """Rows in RUN_DIR/metrics.parquet (0 if none yet), read from the file's footer."""
-    from pathlib import Path
-
-    import pyarrow.parquet as pq
-
-    path = Path(run_dir) / "metrics.parquet"
-    return pq.ParquetFile(path).metadata.num_rows if path.is_file() else 0
-
-
-def _print_summary(run_dir, trained: bool) -> None:
-    import pandas as pd
-
-    df = pd.read_parquet(run_dir / "metrics.parquet")
-    tr = df[df.phase == "train"]
-    last = tr[tr.episode >= tr.episode.max() - 99]
-    acts = last.habit_actions.sum() + last.planning_actions.sum()
-    print(json.dumps({"run_dir": str(run_dir), "status": "trained" if trained else "already finished; nothing trained",
-                      "episodes": int(tr.episode.max()) + 1, "seeds": int(df.seed.nunique()),
-                      "success_rate_last_100": round(float(last.success.mean()), 4),
-                      "habit_share_last_100": round(float(last.habit_actions.sum() / max(1, acts)), 4)}))
+    trained = metric_rows(run_dir) != before
+    summary = {"run_dir": str(run_dir), "status": "trained" if trained else "already finished; nothing trained",
+               **run_summary(run_dir)}
+    print(json.dumps(summary))
     print(f"next: apac-mj evaluate {run_dir}")
+    return 0

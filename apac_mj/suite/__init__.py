@@ -2,8 +2,8 @@
 
     env = apac_mj.suite.load("planar_arm", "changing_target", task_kwargs={"random": 0})
 
-Tasks are the TOML files in ``tasks/``; ``ALL_TASKS`` lists ``(domain, task)``
-pairs. ``task_kwargs`` takes ``random`` (seed or RandomState), ``actuation``
+Tasks are the TOML files in ``tasks/``; ``ALL_TASKS`` lists their ``(domain, task)``
+pairs. :func:`register_task` adds one from user code (docs/extending.md). ``task_kwargs`` takes ``random`` (seed or RandomState), ``actuation``
 ("servo", the default, or "kinematic") and any :class:`TaskSpec` field as an
 override (e.g. ``target_region="test"``).
 """
@@ -14,7 +14,8 @@ from typing import Any
 from dm_control.rl import control
 
 from apac_mj.suite import planar_arm
-from apac_mj.suite.task_spec import TaskSpec, TaskSpecError, load_task, load_task_file, task_names
+from apac_mj.suite.task_spec import (TaskSpec, TaskSpecError, load_task, load_task_file, register_task,
+                                     task_names, unregister_task)
 
 DOMAINS = {"planar_arm": planar_arm}
 ALL_TASKS: tuple[tuple[str, str], ...] = tuple(("planar_arm", name) for name in task_names())
@@ -41,4 +42,5 @@ def load(
     return planar_arm.make_environment(spec, actuation=actuation, random=random, **(environment_kwargs or {}))
 
 
-__all__ = ["ALL_TASKS", "TaskSpec", "TaskSpecError", "load", "load_spec", "load_task_file"]
+__all__ = ["ALL_TASKS", "TaskSpec", "TaskSpecError", "load", "load_spec", "load_task_file", "register_task",
+           "unregister_task"]

@@ -18,7 +18,7 @@ from dm_env import specs
 
 from apac_mj import paths
 from apac_mj.kinematics import motion_function
-from apac_mj.suite.task_spec import TaskSpec
+from apac_mj.suite.task_spec import START_ANGLES, TaskSpec
 
 #: Physics sub-steps per environment step under servo actuation. With the
 #: servo gains in the MJCF (kp = 1e4, kv = 200, rotor armature 1, 10 ms
@@ -29,12 +29,10 @@ N_SUB_STEPS = 40
 #: Physics sub-steps per step under kinematic actuation: the angles are
 #: written exactly and the servos hold them, so one sub-step is enough.
 KINEMATIC_SUB_STEPS = 1
-#: Joint range of both hinges, degrees.
+#: Joint range of both hinges in the MJCF, degrees (the default of ``TaskSpec.joint_range``).
 JOINT_RANGE = (0.0, 180.0)
 #: Bound of each action component (change of a joint angle), degrees.
 ACTION_BOUND = 180.0
-#: Joint angles at the start of every episode (shoulder, elbow), degrees.
-START_ANGLES = (0.0, 180.0)
 ACTUATIONS = ("servo", "kinematic")
 
 
@@ -78,8 +76,9 @@ class Physics(engine.Physics):
     indexing costs more than the physics itself at this model's size.
     """
 
-    # Plane bounds, set by the task that owns this physics.
+    # Plane bounds and the joints' range (degrees), set by the task that owns this physics.
     plane_size: tuple[float, float] = (30.0, 30.0)
+    joint_range: tuple[float, float] = JOINT_RANGE
 
     def _reload_from_data(self, data) -> None:
         # Set before the base class runs after_reset(), and again on every copy/reload.
@@ -120,7 +119,7 @@ class Physics(engine.Physics):
 
     def set_joint_angles(self, alpha_deg: float, beta_deg: float) -> None:
         """Place the arm at these angles, at rest, with the servos holding them."""
-        lo, hi = JOINT_RANGE
+        lo, hi = self.joint_range
         for name, value in (("shoulder", alpha_deg), ("elbow", beta_deg)):
             if not math.isfinite(value) or not lo <= value <= hi:
                 raise ValueError(f"{name} angle must be finite and within the joint range [{lo}, {hi}] degrees, "
@@ -136,9 +135,13 @@ class Physics(engine.Physics):
         self._d.ctrl[ids.ctrl] = q
         mujoco.mj_forward(self._m, self._d)  # positions only: no step, so no instability to check
 
-    def set_joint_limits(self, limited: bool) -> None:
-        """Turn MuJoCo's joint-limit constraint of both hinges on (the MJCF's [0, 180]) or off."""
+    def set_joint_limits(self, limited: bool, joint_range: tuple[float, float] = JOINT_RANGE) -> None:
+        """Turn MuJoCo's joint-limit constraint of both hinges on or off, at ``joint_range`` (degrees;
+        the MJCF's compiled [0, 180] is kept as it is for the default)."""
+        self.joint_range = tuple(joint_range)
         self._m.jnt_limited[self.ids.joints] = 1 if limited else 0
+        if self.joint_range != JOINT_RANGE:
+            self._m.jnt_range[self.ids.joints] = np.deg2rad(np.asarray(self.joint_range, dtype=np.float64))
 
     def set_servo_setpoint(self, angles_deg) -> None:
         """Command the position servos to these (shoulder, elbow) angles in degrees."""
@@ -254,7 +257,7 @@ class Reach(base.Task):
         if self.spec.kinematics_mode == "static":
             self._lengths = np.array(self.spec.link_lengths, dtype=np.float64)
         physics.set_link_lengths(*self._lengths)
-        physics.set_joint_limits(self.spec.at_limit == "clip")
+        physics.set_joint_limits(self.spec.at_limit == "clip", self.spec.joint_range)
         physics.set_joint_angles(*START_ANGLES)
         physics.set_target(self._episode_target())
         physics.forward()
@@ -270,14 +273,14 @@ class Reach(base.Task):
 
     def sample_target(self, max_tries: int = 10_000) -> np.ndarray:
         """A reachable target: uniform joint angles through the motion function."""
-        lo, hi = JOINT_RANGE
+        lo, hi = self.spec.joint_range
         w, h = self.spec.plane_size
         for _ in range(max_tries):
             alpha, beta = self.random.uniform(lo, hi, size=2)
             end, _ = motion_function(alpha, beta, *self._lengths, self.spec.origin)
             if not (0.0 <= end[0] <= w and 0.0 <= end[1] <= h):
                 continue
-            in_test = end[1] >= self.spec.region.test_y_min
+            in_test = self.spec.region.contains_test(end)
             if self.spec.target_region == "test" and not in_test:
                 continue
             if self.spec.target_region == "train" and in_test:
@@ -299,7 +302,7 @@ class Reach(base.Task):
         change = np.minimum(np.maximum(action, -ACTION_BOUND), ACTION_BOUND)
         setpoint = physics.joint_angles() + change
         if self.spec.at_limit == "clip":
-            lo, hi = JOINT_RANGE
+            lo, hi = self.spec.joint_range
             setpoint = np.minimum(np.maximum(setpoint, lo), hi)
         if self.actuation == "kinematic":
             physics.write_joint_angles(setpoint)

@@ -64,7 +64,7 @@ def region_stats(spec: TaskSpec) -> RegionStats:
     return RegionStats(
         test_y_min=y_min,
         link_lengths=tuple(float(v) for v in spec.link_lengths),
-        test_area_fraction=float(np.mean(cells[:, 1] >= y_min)),
-        grid_targets_in_test=int(np.sum(targets[:, 1] >= y_min)),
+        test_area_fraction=float(np.mean(spec.region.contains_test(cells))),
+        grid_targets_in_test=int(np.sum(spec.region.contains_test(targets))),
         grid_targets=len(targets),
     )

@@ -1,10 +1,13 @@
 """Task conditions as data: TOML files in ``tasks/``, read and validated here.
 
-A task file states every condition of the paper's experiments (target
+A task file states one condition of the paper's experiments (target
 static/changing, kinematics static/changing, vision perfect/occluded, the
-generalization region) and the constants of the environment. Every key is
-checked: an unknown key or a bad value raises :class:`TaskSpecError` naming the
-file, the key and the problem. Users add a condition by adding a file.
+generalization region) as what differs from the defaults: the field defaults
+of :class:`TaskSpec`, the paper's values (its "Experimental Conditions and
+Environment" and Appendix 2 Table 1), documented below. ``apac-mj tasks --show
+NAME`` prints every value of a task. Every key is checked: an unknown key or a
+bad value raises :class:`TaskSpecError` naming the file, the key and the
+problem. Users add a condition by adding a file (docs/extending.md).
 """
 from __future__ import annotations
 
@@ -12,9 +15,15 @@ import dataclasses
 import math
 import tomllib
 from pathlib import Path
+
+import numpy as np
 from typing import Any
 
 from apac_mj import paths
+
+
+#: The arm's (shoulder, elbow) angles at every episode's start (degrees): stretched along the x axis, folded back.
+START_ANGLES = (0.0, 180.0)
 
 
 class TaskSpecError(ValueError):
@@ -34,8 +43,9 @@ class Region:
 
     test_y_min: float = 22.3
 
-    def contains_test(self, xy) -> bool:
-        return bool(xy[..., 1] >= self.test_y_min)
+    def contains_test(self, xy) -> np.ndarray:
+        """Which of the points ``xy`` (``[..., 2]``, cm) lie in the test region: ``[...]`` bool."""
+        return np.asarray(xy)[..., 1] >= self.test_y_min
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,7 +71,10 @@ class TaskSpec:
     growth_start_episode: int = 100
     #: "perfect" or "occluded" (target and arm seen at the first step only).
     vision: str = "perfect"
-    #: What the plant does with a command past a joint limit (both joints move in [0, 180] degrees):
+    #: (low, high) of both joints in degrees (the paper: "each joint only moves between 0 to 180 degrees");
+    #: it must hold the start pose ``START_ANGLES`` (0, 180).
+    joint_range: tuple[float, float] = (0.0, 180.0)
+    #: What the plant does with a command past a joint limit (``joint_range``):
     #: "clip" (the paper: "each joint only moves between 0 to 180 degrees"; the part past the limit
     #: is lost) or "unbounded" (no limit: the angles go on, as the motion function itself allows).
     at_limit: str = "clip"
@@ -91,6 +104,11 @@ class TaskSpec:
             raise TaskSpecError(f"task {self.name!r}: growth_start_episode must be >= 0")
         if self.steps_per_episode < 1:
             raise TaskSpecError(f"task {self.name!r}: steps_per_episode must be >= 1")
+        lo, hi = self.joint_range
+        if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+            raise TaskSpecError(f"task {self.name!r}: joint_range must be finite with low < high, got {self.joint_range}")
+        if not all(lo <= a <= hi for a in START_ANGLES):
+            raise TaskSpecError(f"task {self.name!r}: joint_range {self.joint_range} must hold the start pose {START_ANGLES}")
         ox, oy = self.origin
         if not (0 <= ox <= self.plane_size[0] and 0 <= oy <= self.plane_size[1]):
             raise TaskSpecError(f"task {self.name!r}: origin {self.origin} lies outside the plane {self.plane_size}")
@@ -104,6 +122,13 @@ class TaskSpec:
         if unknown:
             raise TaskSpecError(f"task {self.name!r}: unknown override(s) {sorted(unknown)}")
         return dataclasses.replace(self, **overrides)
+
+
+def describe(spec: TaskSpec) -> str:
+    """Every field of ``spec``, one ``name = value`` line each, ``*`` marking those that differ from the defaults."""
+    default = TaskSpec(name=spec.name)
+    return "\n".join(f"{'*' if getattr(spec, f.name) != getattr(default, f.name) else ' '} {f.name} = "
+                     f"{getattr(spec, f.name)!r}" for f in dataclasses.fields(spec) if f.name != "name")
 
 
 def _check_choice(spec: TaskSpec, field: str, choices: tuple[str, ...]) -> None:
@@ -128,12 +153,12 @@ _LAYOUT: dict[str, dict[str, str]] = {
         "growth_start_episode": "growth_start_episode",
     },
     "vision": {"mode": "vision"},
-    "joints": {"at_limit": "at_limit"},
+    "joints": {"range": "joint_range", "at_limit": "at_limit"},
     "episode": {"steps": "steps_per_episode"},
     "plane": {"size": "plane_size", "origin": "origin"},
     "region": {"test_y_min": "region"},
 }
-_PAIRS = {"link_lengths", "plane_size", "origin"}
+_PAIRS = {"link_lengths", "plane_size", "origin", "joint_range"}
 _FLOATS = {"zone_radius", "growth_per_step"}
 _INTS = {"growth_start_episode", "steps_per_episode"}
 
@@ -192,15 +217,42 @@ def load_task_file(path: str | Path) -> TaskSpec:
     return parse_task(data, name=path.stem, source=str(path))
 
 
+#: Tasks added at run time by :func:`register_task` (name -> spec), beside the files in tasks/.
+_REGISTERED: dict[str, TaskSpec] = {}
+
+
+def register_task(task: TaskSpec | str | Path, replace: bool = False) -> TaskSpec:
+    """Add a task from user code: a :class:`TaskSpec` or the path of a task file (named by its stem).
+
+    It is then known by name everywhere a task file is (``suite.load``, ``TrainConfig.task``, grid
+    conditions), in this process; a name that is taken needs ``replace=True``."""
+    spec = task if isinstance(task, TaskSpec) else load_task_file(task)
+    if not replace and (spec.name in _REGISTERED or spec.name in task_names(paths.tasks_dir())):
+        raise TaskSpecError(f"task {spec.name!r} already exists (pass replace=True to redefine it)")
+    _REGISTERED[spec.name] = spec
+    return spec
+
+
+def unregister_task(name: str) -> None:
+    """Remove a task added by :func:`register_task`."""
+    if name not in _REGISTERED:
+        raise KeyError(f"task {name!r} was not registered at run time")
+    del _REGISTERED[name]
+
+
 def task_names(directory: Path | None = None) -> list[str]:
-    directory = directory or paths.tasks_dir()
-    return sorted(p.stem for p in directory.glob("*.toml"))
+    """The tasks in ``directory`` (default: tasks/ and those registered at run time)."""
+    if directory is not None:
+        return sorted(p.stem for p in directory.glob("*.toml"))
+    return sorted({p.stem for p in paths.tasks_dir().glob("*.toml")} | set(_REGISTERED))
 
 
 def load_task(name: str, directory: Path | None = None) -> TaskSpec:
-    """Load ``tasks/<name>.toml``; an unknown name lists the known ones."""
-    directory = directory or paths.tasks_dir()
-    path = directory / f"{name}.toml"
+    """Load ``tasks/<name>.toml`` (or a registered task); an unknown name lists the known ones."""
+    if directory is None and name in _REGISTERED:
+        return _REGISTERED[name]
+    where = directory or paths.tasks_dir()
+    path = where / f"{name}.toml"
     if not path.is_file():
         raise KeyError(f"unknown task {name!r}; known tasks: {', '.join(task_names(directory))}")
     return load_task_file(path)

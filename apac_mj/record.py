@@ -1,0 +1,140 @@
+"""Rollouts of a trained run's (or untrained) networks into a Rerun recording and a video.
+
+:func:`record` is what ``apac-mj record`` and ``apac-mj demo`` call: it loads
+the agent (a run's latest checkpoint, or fresh networks), continues the run's
+environments where training left off (or builds fresh ones), rolls out frozen
+episodes with :class:`apac_mj.rollout.EpisodeLoop` and logs one member through
+:class:`apac_mj.recording.EpisodeRecorder`.
+"""
+from __future__ import annotations
+
+import dataclasses
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from apac_mj import checkpoint, kinds
+from apac_mj.agent import Agent
+from apac_mj.config import AgentConfig, TrainConfig, task_spec, train_config_from_dict
+from apac_mj.kinematics import Geometry
+from apac_mj.rollout import EpisodeLoop
+from apac_mj.vec_env import VecEnv
+
+
+@dataclasses.dataclass(frozen=True)
+class Recorded:
+    """What :func:`record` wrote."""
+
+    rrd: Path
+    #: Render frames in the recording.
+    frames: int
+    video: Path | None = None
+    video_frames: int = 0
+
+
+def record(out: str | Path, run: str | Path | None = None, task: str | None = None, agent: str | None = None,
+           seed: int = 0, member: int = 0, episodes: int = 5, as_episode: int | None = None,
+           video: str | Path | None = None, fps: int = 5, progress: bool = True) -> Recorded:
+    """Roll out ``episodes`` frozen episodes (no noise, no learning) and save member ``member`` to ``out``.
+
+    With ``run`` the networks are the run's latest checkpoint and the rollouts continue its environments
+    (unless ``task`` names another task); without it the networks are untrained and seeded from ``seed``.
+    ``agent`` re-arbitrates the networks as another kind; ``as_episode`` is the training episode the
+    arbitrator sees first (default: the run's trained episodes, or ``planning_episodes``).
+    """
+    out, video = Path(out), None if video is None else Path(video)
+    _check(out, run, video, episodes, fps, seed, member)
+    from apac_mj.recording import EpisodeRecorder
+    from apac_mj.render import write_video
+    from apac_mj.trainer import config_dict
+
+    cfg, net, first, env_state = load_agent(run, task, agent, seed, member, as_episode)
+    member = member if run is not None else 0
+    env = rollout_env(cfg, seed, env_state)
+    with EpisodeRecorder(out.parent, 1, config_dict(cfg), member=member, out=out,
+                         keep_frames=video is not None) as recorder:
+        loop = EpisodeLoop(net, kinds.arbitrator_for(cfg.agent), env, on_step=recorder.on_step,
+                           on_episode_start=recorder.on_episode_start)
+        for k in tqdm(range(episodes), desc="record", unit="episode", disable=not progress):
+            loop.run_episode(np.ones(env.E, dtype=bool), first + k)
+    if video is not None:
+        write_video(video, recorder.frames, fps=fps)
+    return Recorded(out, _frames(out), video, len(recorder.frames) if video is not None else 0)
+
+
+def _check(out: Path, run: str | Path | None, video: Path | None, episodes: int, fps: int, seed: int,
+           member: int) -> None:
+    if episodes < 1:
+        raise ValueError(f"--episodes must be >= 1, got {episodes}")
+    if out.suffix != ".rrd":
+        raise ValueError(f"--out must end in .rrd, got {str(out)!r}")
+    if video is not None and video.suffix.lower() not in (".mp4", ".gif"):
+        raise ValueError(f"--video must end in .mp4 or .gif, got {str(video)!r}")
+    if fps < 1:
+        raise ValueError(f"--fps must be >= 1, got {fps}")
+    if seed < 0 or member < 0:
+        raise ValueError("--seed and --member must be >= 0")
+    if run is not None and not (Path(run) / "config.json").is_file():
+        from apac_mj.evaluate import not_a_run_dir
+
+        raise FileNotFoundError(f"--run: {not_a_run_dir(Path(run), 'record --run')}")
+
+
+def load_agent(run: str | Path | None, task: str | None, agent: str | None, seed: int, member: int,
+               as_episode: int | None) -> tuple[TrainConfig, Agent, int, dict[str, Any] | None]:
+    """(config, agent, first arbitrator episode, the run's environment state or None): from a run's latest
+    checkpoint, or fresh networks seeded from ``seed``."""
+    if run is None:
+        cfg = TrainConfig(task=task or "changing_target", seeds=(seed,), agent=AgentConfig(agent=agent or kinds.DEFAULT))
+        net = Agent(cfg.agent, cfg.seeds, geometry=Geometry.from_spec(task_spec(cfg)))
+        return cfg, net, cfg.agent.planning_episodes if as_episode is None else as_episode, None
+    from apac_mj.evaluate import warn_user
+
+    ckpt = checkpoint.load_run_checkpoint(Path(run), required=("config", "agent", "loop", "env"), warn=warn_user)
+    run_cfg = dict(ckpt["config"])
+    run_cfg.pop("git_commit", None)
+    cfg = train_config_from_dict(run_cfg)
+    if member >= len(cfg.seeds):
+        raise ValueError(f"--member {member} out of range: the run has {len(cfg.seeds)} seeds {list(cfg.seeds)}")
+    net = Agent(cfg.agent, cfg.seeds, geometry=Geometry.from_spec(task_spec(cfg)))
+    net.load_state_dict(ckpt["agent"])
+    _say_overrides(run, task, agent, seed, cfg)
+    if agent is not None:
+        cfg.agent.agent = kinds.get(agent).name
+    env_state = ckpt["env"] if task in (None, cfg.task) else None
+    cfg.task = task or cfg.task
+    trained = int(ckpt["loop"]["episode"][member])
+    return cfg, net, max(trained, 0) if as_episode is None else as_episode, env_state
+
+
+def _say_overrides(run: str | Path, task: str | None, agent: str | None, seed: int, cfg: TrainConfig) -> None:
+    """With a run, an agent kind or task other than the run's is allowed but said."""
+    if agent not in (None, cfg.agent.agent):
+        print(f"note: {run} trained {cfg.agent.agent}; recording its networks arbitrated as {agent} "
+              f"(--agent {agent})", file=sys.stderr)
+    if task not in (None, cfg.task):
+        print(f"note: {run} trained on {cfg.task}; recording on {task} (--task) with fresh environments "
+              f"seeded from --seed {seed}, not the run's", file=sys.stderr)
+
+
+def rollout_env(cfg: TrainConfig, seed: int, env_state: dict[str, Any] | None) -> VecEnv:
+    """The run's environments where training left off (``env_state``), else fresh ones seeded from ``seed``."""
+    from apac_mj.trainer import training_env
+
+    if env_state is None:
+        return VecEnv(cfg.task, [seed + k for k in range(len(cfg.seeds))], actuation=cfg.actuation,
+                      overrides=dict(cfg.task_overrides))
+    env = training_env(cfg)  # built as the trainer builds it, then restored: lengths, targets, sequence
+    env.set_state(env_state)
+    return env
+
+
+def _frames(path: Path) -> int:
+    from apac_mj.recording import RENDER, read_recording
+
+    entities, _, _ = read_recording(path)
+    return len(entities[RENDER].times["frame"])

@@ -1,0 +1,134 @@
+"""The agent-kind registry: every kind, a dummy one defined here included, trains, evaluates and reports."""
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+
+from apac_mj import grid, kinds, report
+from apac_mj.arbitrator import HISTORY, ArbitrationContext
+from apac_mj.config import AgentConfig
+
+PACKAGE = Path(__file__).resolve().parents[1] / "apac_mj"
+
+
+class EveryOtherStep:
+    """A rule the built-ins cannot express: the habit on even steps; it also keeps every context it saw."""
+
+    seen: list[ArbitrationContext] = []
+
+    def __init__(self, cfg: AgentConfig) -> None:
+        self.cfg = cfg
+
+    def use_habit(self, ctx: ArbitrationContext) -> torch.Tensor:
+        EveryOtherStep.seen.append(ctx)
+        return ctx.step % 2 == 0
+
+
+DUMMY = kinds.AgentKind("every_other", "Every other step", "tab:pink", EveryOtherStep)
+KINDS = [*kinds.names(), DUMMY.name]
+
+
+@pytest.fixture(scope="module")
+def results(tmp_path_factory):
+    """A tiny grid of every registered kind plus the dummy: trained, tested, reported."""
+    kinds.register(DUMMY)
+    try:
+        preset = grid.load_preset("smoke", [f"agents={','.join(KINDS)}", "conditions=changing_target",
+                                            "episodes=3", "tests.generalization=false", "tests.limit=3"])
+        out = tmp_path_factory.mktemp("kinds")
+        grid.run_grid(preset, out, progress=False)
+        report_dir = report.write_report(out)
+        yield out, report_dir
+    finally:
+        kinds.unregister(DUMMY.name)
+
+
+@pytest.mark.parametrize("name", KINDS)
+def test_every_kind_trains_evaluates_and_reports(results, name):
+    out, report_dir = results
+    kind = DUMMY if name == DUMMY.name else kinds.get(name)
+    cell = out / f"{name}__changing_target"
+    metrics = pd.read_parquet(cell / "metrics.parquet")
+    assert (metrics.phase == "train").sum() == 2 * 3
+    summary = pd.read_json(cell / "eval" / "summary.json", typ="series")["protocols"]
+    assert summary["grid"]["episodes"] == 2 * 3
+    assert ("occluded" in summary) == kind.acts_occluded
+    table = pd.read_csv(report_dir / "key_numbers.csv")
+    assert (table.agent == name).any()
+    text = (report_dir / "report.md").read_text()
+    assert kind.label in text
+    if kind.arbitrates:
+        assert (table[table.quantity == "habit_fraction_late"].agent == name).any()
+    for fig in ("fig3_training_success.png", "fig4_test.png", "fig6_steps_time.png"):
+        assert (report_dir / fig).stat().st_size > 0
+
+
+def test_the_dummy_arbitrator_decides_and_sees_the_context(results):
+    out, _ = results
+    metrics = pd.read_parquet(out / f"{DUMMY.name}__changing_target" / "metrics.parquet")
+    train = metrics[metrics.phase == "train"]
+    np.testing.assert_array_equal(train.habit_actions, (train.steps + 1) // 2)  # steps 0, 2, 4, ...
+    late = [c for c in EveryOtherStep.seen if (c.step > 0).all()]
+    assert late and all(c.recent_deltas.shape == (c.E, HISTORY) and c.state.shape == (c.E, 6) for c in late)
+    assert any(torch.isfinite(c.forward_error).all() and c.vision.all() for c in late)
+    assert all(torch.isfinite(c.recent_deltas[:, -1]).all() for c in late)  # the last delta is pushed
+    first = [c for c in EveryOtherStep.seen if (c.step == 0).all()]
+    assert first and all(torch.isnan(c.last_delta).all() and torch.isnan(c.forward_error).all() for c in first)
+
+
+def test_an_unregistered_kind_in_results_is_a_clear_error(results):
+    out, _ = results
+    kinds.unregister(DUMMY.name)
+    try:
+        with pytest.raises(kinds.UnknownKindError, match="every_other.*not registered"):
+            report.write_report(out, out / "report_again")
+        assert not (out / "report_again").exists()
+    finally:
+        kinds.register(DUMMY)
+
+
+def test_registry_refuses_bad_kinds():
+    with pytest.raises(ValueError, match="already registered"):
+        kinds.register(kinds.AgentKind("apac", "APAC", "tab:blue", EveryOtherStep))
+    with pytest.raises(ValueError, match="habit, the planner or both"):
+        kinds.AgentKind("none", "None", "k", EveryOtherStep, uses_habit=False, uses_planner=False)
+    with pytest.raises(ValueError, match="built-in"):
+        kinds.unregister("ddpg")
+    with pytest.raises(ValueError, match="unknown agent kind 'nope'; registered kinds: ddpg, spac, apac"):
+        AgentConfig(agent="nope")
+
+
+def test_use_habit_must_return_one_bool_per_member():
+    from apac_mj.rollout import select_action
+
+    class Wrong:
+        def use_habit(self, ctx):
+            return torch.ones(ctx.E + 1, dtype=torch.bool)
+
+    ctx = ArbitrationContext(torch.zeros(2, dtype=torch.long), torch.zeros(2, dtype=torch.long), torch.zeros(2),
+                             state=torch.zeros(2, 6))
+    with pytest.raises(ValueError, match=r"Wrong.use_habit must return \[E\] = \(2,\) bools"):
+        select_action(None, Wrong(), ctx, np.ones(2, dtype=bool), explore=False)
+
+
+def test_kind_names_appear_only_in_the_registry_and_the_papers_table():
+    """No module tests a kind's name: string constants equal to a built-in name live only in kinds.py
+    and in report.py's table of the paper's values (PAPER)."""
+    found = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        if path.name == "kinds.py":
+            continue
+        tree = ast.parse(path.read_text())
+        allowed = set()
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Assign) and any(getattr(t, "id", None) == "PAPER" for t in node.targets):
+                allowed |= {id(n) for n in ast.walk(node)}
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Constant) and node.value in kinds.BUILTIN and id(node) not in allowed:
+                found.append(f"{path.relative_to(PACKAGE.parent)}:{node.lineno} {node.value!r}")
+    assert not found, "agent kind names outside the registry: " + ", ".join(found)

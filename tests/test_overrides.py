@@ -1,0 +1,113 @@
+"""One --set grammar and one seed grammar for every command; bad values refused before anything runs;
+every field's doc in --help."""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+
+import pytest
+
+from apac_mj import grid, overrides
+from apac_mj.cli import build_parser, main
+from apac_mj.commands import train as train_cmd
+from apac_mj.config import AgentConfig, TrainConfig
+from apac_mj.presets import Preset
+from apac_mj.presets import Tests as PresetTests
+
+
+def _train_args(*sets: str, seeds: str | None = None) -> argparse.Namespace:
+    argv = ["train", "--out", "unused"] + (["--seeds", seeds] if seeds else [])
+    return build_parser().parse_args(argv + [a for s in sets for a in ("--set", s)])
+
+
+@pytest.mark.parametrize("text", ["3", "2-4", "0,3,5", "[1, 4]", "6-6"])
+def test_one_seed_grammar(text):
+    grid_seeds = grid.load_preset("smoke", [f"seeds={text}"]).seeds
+    assert train_cmd.train_config(_train_args(seeds=text)).seeds == grid_seeds
+    assert train_cmd.train_config(_train_args(f"seeds={text}")).seeds == grid_seeds
+    assert {"3": (0, 1, 2), "6-6": (6,)}.get(text, grid_seeds) == grid_seeds
+
+
+def test_one_override_grammar_for_train_and_grid():
+    sets = ["actor_hidden=64,64", "agent.batch_size=32", "ou_sigma_initial=none", "normalize_inputs=false",
+            "episodes=7", 'task_overrides={at_limit = "unbounded"}']
+    cfg = train_cmd.train_config(_train_args(*sets))
+    preset = grid.load_preset("smoke", sets)
+    cell = grid.cells(preset)[0].train_config(preset)
+    for c in (cfg, cell):
+        assert c.agent.actor_hidden == (64, 64) and c.agent.batch_size == 32 and c.agent.ou_sigma_initial is None
+        assert c.agent.normalize_inputs is False and c.episodes == 7 and c.task_overrides == {"at_limit": "unbounded"}
+    assert grid.load_preset("smoke", ["agent.actor_hidden=[64, 64]"]).agent["actor_hidden"] == (64, 64)
+
+
+@pytest.mark.parametrize("item, message", [
+    ("agent.actor_hidden=abc,64", "agent.actor_hidden must be an integer, got 'abc'"),
+    ("actor_hidden=64,64,64", "agent.actor_hidden must have 2 entries"),
+    ("batch_size=1.5", "agent.batch_size must be an integer, got 1.5"),
+    ("normalize_inputs=maybe", "agent.normalize_inputs must be true or false"),
+    ("task_overrides=3", "task_overrides must be a table"),
+])
+def test_bad_values_are_refused_by_both_before_anything_runs(tmp_path, capsys, item, message):
+    with pytest.raises(grid.PresetError, match="preset 'smoke'") as e:
+        grid.load_preset("smoke", [item])
+    assert message in str(e.value)
+    with pytest.raises(overrides.OverrideError) as e:
+        train_cmd.train_config(_train_args(item))
+    assert message in str(e.value)
+    assert main(["grid", "--preset", "smoke", "--out", str(tmp_path / "g"), "--set", item]) == 2
+    assert main(["train", "--out", str(tmp_path / "t"), "--set", item]) == 2
+    assert message in capsys.readouterr().err
+    assert not any(tmp_path.iterdir())
+
+
+def test_a_bad_task_override_is_refused_before_a_grid_writes(tmp_path):
+    with pytest.raises(ValueError, match="unknown override"):
+        grid.run_grid(grid.load_preset("smoke", ["task_overrides={no_such = 1}"]), tmp_path / "g", progress=False)
+    assert not (tmp_path / "g").exists()
+
+
+def test_presets_embed_the_run_config():
+    run_fields = {f.name for f in dataclasses.fields(TrainConfig)}
+    assert not run_fields & ({f.name for f in dataclasses.fields(Preset)} - {"agent"})  # not declared again
+    p = grid.load_preset("smoke")
+    assert isinstance(p.run, TrainConfig) and p.run.seeds == p.seeds == (0, 1) and p.run.agent.batch_size == 16
+
+
+def _help(argv: list[str], capsys) -> str:
+    with pytest.raises(SystemExit):
+        main(argv + ["--help"])
+    return capsys.readouterr().out
+
+
+def test_every_field_and_its_doc_is_in_help(capsys):
+    train_help, grid_help = _help(["train"], capsys), _help(["grid"], capsys)
+    for cls, prefix in ((TrainConfig, ""), (AgentConfig, ""), (Preset, ""), (PresetTests, "tests.")):
+        docs = overrides.field_docs(cls)
+        for f in dataclasses.fields(cls):
+            if f.name in ("agent", "name", "run", "tests"):
+                continue
+            assert docs.get(f.name), f"{cls.__name__}.{f.name} has no doc"
+            first = docs[f.name].split()[0]
+            if f.name != "task":  # each cell's, not a preset key
+                assert f"{prefix}{f.name} = " in grid_help and first in grid_help
+            if cls in (TrainConfig, AgentConfig):
+                assert f"  {f.name} = " in train_help, f"{f.name} missing from train --help"
+
+
+def test_field_docs_read_the_comments():
+    @dataclasses.dataclass
+    class Example:
+        # -- a section ---
+        #: First line,
+        #: second line.
+        a: int = 1
+        b: str = "x"
+
+    assert overrides.field_docs(Example) == {"a": "First line, second line.", "b": "(section: a section)"}
+
+
+def test_agent_overrides_for_scripts_use_the_same_grammar():
+    assert train_cmd.agent_overrides(["batch_size=64", "agent.actor_hidden=64,64"]) == {
+        "batch_size": 64, "actor_hidden": (64, 64)}
+    with pytest.raises(ValueError, match="unknown AgentConfig field"):
+        train_cmd.agent_overrides(["no_such=1"])
