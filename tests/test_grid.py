@@ -71,7 +71,7 @@ def test_bad_overrides_name_the_problem(override: str, message: str) -> None:
 
 
 def test_unknown_preset_lists_known_ones(tmp_path: Path) -> None:
-    with pytest.raises(FileNotFoundError, match="known presets: demo, paper, quick, smoke"):
+    with pytest.raises(FileNotFoundError, match="known presets: demo, fidelity, paper, quick, smoke"):
         grid.load_preset("huge")
     bad = tmp_path / "bad.toml"
     bad.write_text("agents = [\n")

@@ -233,7 +233,8 @@ def test_episode_losses_are_the_mean_of_the_updates(tmp_path, monkeypatch):
         chunk = seen[start:start + int(row.steps)]
         start += int(row.steps)
         for name in ("critic", "actor", "forward", "inverse"):
-            assert row[f"{name}_loss"] == pytest.approx(np.mean([c[name][0] for c in chunk]), rel=1e-6)
+            assert row[f"{name}_loss"] == pytest.approx(np.mean([c[name][0] for c in chunk], dtype=np.float64),
+                                                        rel=1e-9)
     assert (df[["critic_loss", "forward_loss", "inverse_loss"]] >= 0).all().all()
 
 
