@@ -7,11 +7,12 @@ need at most 12 steps on average (measured ~4-5) and the mean final distance of
 the last 5 episodes is below a third of the first 2 episodes' (learning
 happened, it was not luck of the start pose).
 
-Fast (CI): APAC on changing_target, 3 seeds x 50 episodes, planning phase
+Fast (CI): APAC on changing_target, 3 seeds x 80 episodes, planning phase
 shortened to 20 episodes. Asserts: no habit before episode 20; afterwards the
-arbitrator mixes both controllers (habit share of episodes 20-49 in [0.2, 0.95];
-measured ~0.4) and the last 10 episodes reach >= 75% of their targets pooled
-over seeds (measured 83%), >= 50% for every seed (measured 80-90%).
+arbitrator mixes both controllers (habit share of episodes 20-79 in [0.2, 0.95];
+measured 0.41) and the last 10 episodes reach >= 75% of their targets pooled
+over seeds (measured 97%), >= 50% for every seed (measured 90-100%). The
+planning checks use a constant 2-degree OU sigma (PLANNING below).
 
 Also (about 8 s): APAC with the paper's 100-episode planning phase on static_target,
 3 seeds x 150 episodes, 64-unit networks: episodes 100-149 reach >= 85%
@@ -30,8 +31,12 @@ from apac_mj.config import AgentConfig, TrainConfig
 from apac_mj.trainer import train
 
 
+#: The planning checks run with a constant 2-degree OU sigma: the default anneals from 18 degrees over 150
+#: episodes (for DDPG's exploration), and noise that large keeps any controller out of the 0.5 cm zone
+#: during these short runs whatever it has learned.
+PLANNING = dict(ou_sigma_initial=None)
 SMALL = dict(actor_hidden=(32, 32), critic_hidden=(32, 32), forward_hidden=(32, 32), inverse_hidden=(32, 32),
-             batch_size=32, babbling_episodes=3)
+             batch_size=32, babbling_episodes=3, **PLANNING)
 
 
 def run(tmp_path, agent: str, task: str, episodes: int, seeds=(0, 1, 2, 3), **kw) -> pd.DataFrame:
@@ -52,19 +57,19 @@ def test_spac_learns_static_target_fast(tmp_path):
 
 
 def test_apac_arbitrates_and_keeps_reaching(tmp_path):
-    df = run(tmp_path, "apac", "changing_target", episodes=50, seeds=(0, 1, 2), planning_episodes=20)
+    df = run(tmp_path, "apac", "changing_target", episodes=80, seeds=(0, 1, 2), planning_episodes=20)
     assert (df[df.episode < 20].habit_actions == 0).all()
     after = df[df.episode >= 20]
     share = after.habit_actions.sum() / (after.habit_actions + after.planning_actions).sum()
     assert 0.2 <= share <= 0.95, share
-    last = df[df.episode >= 40]
+    last = df[df.episode >= 70]  # measured: 0.97 pooled, 0.9-1.0 per seed; habit share 0.41
     assert last.success.mean() >= 0.75, last.groupby("seed").success.mean().tolist()
     assert (last.groupby("seed").success.mean() >= 0.5).all(), last.groupby("seed").success.mean().tolist()
 
 
 def test_apac_after_paper_planning_phase(tmp_path):
     nets = dict(actor_hidden=(64, 64), critic_hidden=(64, 64), forward_hidden=(64, 64), inverse_hidden=(64, 64),
-                batch_size=64, babbling_episodes=10)
+                batch_size=64, babbling_episodes=10, **PLANNING)
     df = run(tmp_path, "apac", "static_target", episodes=150, seeds=(0, 1, 2), **nets)
     after = df[df.episode >= 100]
     assert after.success.mean() >= 0.85, after.groupby("seed").success.mean().tolist()
@@ -74,25 +79,25 @@ def test_apac_after_paper_planning_phase(tmp_path):
 
 def test_habit_formation_makes_apac_mostly_habitual(tmp_path):
     """habit_distillation_weight (an extension): APAC's actor imitates the planner and takes over.
-    3 seeds x 100 episodes on changing targets (50 planning), weight 10 against weight 0: the habit share
+    3 seeds x 100 episodes on changing targets (50 planning), weight 100 against weight 0: the habit share
     after the planning phase rises well above the default's, and most targets are still reached."""
     nets = dict(actor_hidden=(64, 64), critic_hidden=(64, 64), forward_hidden=(64, 64), inverse_hidden=(64, 64),
-                batch_size=64, babbling_episodes=10, planning_episodes=50)
+                batch_size=64, babbling_episodes=10, planning_episodes=50, **PLANNING)
     shares, success = {}, {}
-    for w in (0.0, 10.0):
+    for w in (0.0, 100.0):
         df = run(tmp_path / f"w{w:g}", "apac", "changing_target", episodes=100, seeds=(0, 1, 2),
                  habit_distillation_weight=w, **nets)
         after = df[df.episode >= 50]
         shares[w] = after.habit_actions.sum() / (after.habit_actions + after.planning_actions).sum()
         success[w] = after.success.mean()
-    # measured: habit share 0.46 -> 0.72, success 0.93 -> 0.77 (the habit is less precise than the planner
-    # with these 64-unit networks; with the paper's 400-300 networks success stays at 0.89-0.97)
-    assert shares[10.0] >= 0.6 and shares[10.0] >= shares[0.0] + 0.15, shares
-    assert success[10.0] >= 0.6, success
+    # measured: habit share 0.55 -> 0.82, success 0.85 -> 0.73 (the habit is less precise than the planner
+    # with these 64-unit networks; weight 10 moved the share only 0.55 -> 0.60 once the critic was fixed)
+    assert shares[100.0] >= 0.7 and shares[100.0] >= shares[0.0] + 0.15, shares
+    assert success[100.0] >= 0.6, success
 
 
 PAPER_NETS = dict(actor_hidden=(400, 300), critic_hidden=(400, 600), forward_hidden=(64, 64),
-                  inverse_hidden=(64, 64), batch_size=64, babbling_episodes=10)
+                  inverse_hidden=(64, 64), batch_size=64, babbling_episodes=10, ou_sigma_initial=18.0)
 
 
 def late_success(df, last: int = 50) -> pd.Series:
