@@ -95,26 +95,28 @@ class PlainMember:
 
 
 def rest_of_step(agent: Agent):
-    """One training step without the update: act, predict, step the plant, delta, store."""
+    """One training step without the update: arbitrate and act, predict, step the plant, delta, store
+    (the trainer's :class:`apac_mj.rollout.EpisodeLoop` on a real ``VecEnv``)."""
     import numpy as np
 
-    from apac_mj.arbitrator import Arbitrator
-    from apac_mj.rollout import agent_step, observed_state
+    from apac_mj.kinds import arbitrator_for
+    from apac_mj.rollout import EpisodeLoop, EpisodeState
     from apac_mj.vec_env import VecEnv
 
     E = agent.E
-    env, arbitrator = VecEnv("changing_target", list(range(E))), Arbitrator(agent.cfg)
-    active = np.ones(E, dtype=bool)
-    state = {"s": observed_state(env.reset(), agent.device), "t": np.zeros(E, dtype=np.int64)}
+    loop = EpisodeLoop(agent, arbitrator_for(agent.cfg), VecEnv("changing_target", list(range(E))))
+    active, episode = np.ones(E, dtype=bool), np.full(E, 200)
+    st = EpisodeState.fresh(E, agent.device)
+    loop.start(st, active)
 
     def step() -> None:
-        if env.obs.last.any() or state["t"][0] >= 29:
-            state["s"], state["t"][:] = observed_state(env.reset(), agent.device), 0
-        info = agent_step(agent, arbitrator, env, state["s"], np.full(E, 200), state["t"], np.zeros(E), active)
+        if (st.step >= 29).any() or loop.env.obs.last.any():
+            loop.start(st, active)
+        info = loop.act(st, active, episode, explore=True)
         agent.replay.add(torch.as_tensor(info.state), torch.as_tensor(info.action), torch.as_tensor(info.reward),
                          torch.as_tensor(info.next_state), torch.as_tensor(info.terminal, dtype=torch.float32),
                          torch.as_tensor(active))
-        state["s"], state["t"] = torch.as_tensor(info.next_state), state["t"] + 1
+        loop.advance(st, info, active)
     return step
 
 
