@@ -552,7 +552,7 @@ def _bars(ax: plt.Axes, table: pd.DataFrame, seed_values: pd.DataFrame, quantity
         for xi, r in zip(x, rows):  # the count behind a mean over some of the samples (e.g. reached targets)
             if len(r) and pd.notna(r["samples_of"].iloc[0]):
                 ax.annotate(f"{int(r['samples'].iloc[0])}/{int(r['samples_of'].iloc[0])}", (xi, 0), ha="center",
-                            va="bottom", fontsize=7, xytext=(0, 2), textcoords="offset points")
+                            va="bottom", fontsize=7, rotation=90, xytext=(0, 2), textcoords="offset points")
         for xi, cond in zip(x, conds):
             v = seeds[(seeds["agent"] == agent) & (seeds["condition"] == cond)]["value"].dropna().to_numpy()
             jitter = np.linspace(-width / 4, width / 4, len(v)) if len(v) > 1 else np.zeros(len(v))
