@@ -17,11 +17,34 @@ The built-in rules (the kinds ``ddpg``, ``spac`` and ``apac``):
   ``|delta|`` (``delta_rule="abs"``) or ``delta`` (``"signed"``, Algorithm 2's
   "RPE < 1") of the member's last transition is below ``delta_threshold`` (1),
   else the inverse model. A NaN delta (no last transition) counts as unreliable.
+
+Beyond the paper (its "Discussion" names them; docs/arbitrators.md has the
+equations and sources), each after the same planning phase:
+
+* :class:`UncertaintyArbitrator` (Daw, Niv & Dayan 2005): the system whose
+  one-step prediction is less uncertain acts (habit: running mean of delta^2;
+  planning: running mean of the forward model's squared end-effector error);
+* :class:`ReliabilityArbitrator` (Lee, Shimojo & O'Doherty 2014): reliabilities
+  from the reward and state prediction errors drive a two-state transition
+  of the probability of planning control;
+* :class:`SpeedAccuracyArbitrator` (Keramati, Dezfouli & Piray 2011; the
+  paper's "threshold modulated by the task"): plan only where the gain in
+  distance the forward model expects from planning exceeds what the planning
+  step's extra time (3 habit steps, :data:`PLANNING_COST`) is worth;
+* :class:`VisionAwareArbitrator`: another kind's rule with vision; without
+  vision the habit is suppressed, or checked against the forward model.
+
+Optional methods an arbitrator may have (the episode loop calls them where
+present): ``observe(info, mask, adapt)`` after every step (``adapt``: update
+the running statistics, True in training, False in frozen tests), and
+``state_dict()`` / ``load_state_dict(d)`` (saved in training checkpoints and
+loaded by the tests). Every rule leaves its decision inputs in
+``last_inputs`` (``name -> [E]``), which recordings show per step.
 """
 from __future__ import annotations
 
 import dataclasses
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Any, Callable, Protocol
 
 import numpy as np
 import torch
@@ -31,6 +54,8 @@ if TYPE_CHECKING:
 
 #: TD errors of the member's last transitions kept in :attr:`ArbitrationContext.recent_deltas`.
 HISTORY = 8
+#: Time cost of one action (the paper's Fig. 6: planning three times slower than a habit).
+PLANNING_COST, HABIT_COST = 3, 1
 
 
 @dataclasses.dataclass
@@ -56,6 +81,13 @@ class ArbitrationContext:
     state: torch.Tensor | None = None
     #: The agent's per-member uncertainty estimates ``name -> [E]`` (empty when the agent has none).
     uncertainty: dict[str, torch.Tensor] = dataclasses.field(default_factory=dict)
+    #: The actor's proposal ``[E, 2]`` (degrees, no noise) in ``state``; None if not given.
+    habit_action: torch.Tensor | None = None
+    #: The forward model as a checker: action ``[E, 2]`` -> predicted end effector ``[E, 2]`` after it
+    #: (from ``state``); None if not given.
+    predict_end: Callable[[torch.Tensor], torch.Tensor] | None = None
+    #: Radius of the target zone (cm) the agent judges its estimate by.
+    zone_radius: float = 0.5
 
     def __post_init__(self) -> None:
         self.episode, self.step = torch.as_tensor(self.episode), torch.as_tensor(self.step)
@@ -117,12 +149,252 @@ class DeltaArbitrator:
         self.habit_first_steps = cfg.habit_first_steps
         self.delta_threshold = cfg.delta_threshold
         self.delta_rule = cfg.delta_rule
+        self.last_inputs: dict[str, torch.Tensor] = {}
 
     def use_habit(self, ctx: ArbitrationContext) -> torch.Tensor:
         signal = ctx.last_delta.abs() if self.delta_rule == "abs" else ctx.last_delta
         reliable = signal.to(ctx.episode.device) < self.delta_threshold
         habit = (ctx.step < self.habit_first_steps) | reliable
+        self.last_inputs = {"delta": ctx.last_delta, "threshold": torch.full((ctx.E,), float(self.delta_threshold))}
         return habit & (ctx.episode >= self.planning_episodes)
+
+
+# -- beyond the paper: rules with running statistics ------------------------------------------
+def ema(old: torch.Tensor, new: torch.Tensor, rate: float, mask: torch.Tensor) -> torch.Tensor:
+    """Running mean per member: ``new`` where ``old`` is NaN (the first sample), else
+    ``old + rate (new - old)``; only where ``mask`` and ``new`` is finite."""
+    updated = torch.where(torch.isnan(old), new, old + rate * (new - old))
+    return torch.where(mask & torch.isfinite(new), updated, old)
+
+
+def blend(prior: torch.Tensor, samples: torch.Tensor, weight: float) -> torch.Tensor:
+    """``(weight * prior + sum(samples)) / (weight + n)`` per member over the finite ``samples`` ``[E, H]``
+    (this episode's evidence shrunk towards the running statistic ``prior`` ``[E]``; NaN prior: weight 0)."""
+    finite = torch.isfinite(samples)
+    n, total = finite.sum(dim=1).float(), torch.where(finite, samples, 0.0).sum(dim=1)
+    w = torch.where(torch.isfinite(prior), torch.full_like(prior, weight), 0.0)
+    return (w * torch.nan_to_num(prior) + total) / (w + n)  # 0/0 = NaN: no evidence at all
+
+
+def step_signals(info: Any) -> dict[str, torch.Tensor]:
+    """What the running statistics learn from one :class:`~apac_mj.rollout.StepInfo` (``[E]`` each):
+    the TD error, the forward model's end-effector error where the arm was seen (NaN elsewhere), the
+    estimated distance to the target before and after the step, the step's time cost, the controller."""
+    state, nxt = torch.as_tensor(info.state), torch.as_tensor(info.next_state)
+    vision = torch.as_tensor(info.vision)
+    end_error = torch.linalg.vector_norm(torch.as_tensor(info.predicted_arm)[:, :2] - nxt[:, :2], dim=1)
+    habit = torch.as_tensor(info.habit)
+    return {"delta": torch.as_tensor(info.delta, dtype=torch.float32),
+            "end_error": torch.where(vision, end_error, float("nan")).float(),
+            "before": torch.linalg.vector_norm(state[:, :2] - state[:, 4:], dim=1).float(),
+            "after": torch.linalg.vector_norm(nxt[:, :2] - nxt[:, 4:], dim=1).float(),
+            "cost": torch.where(habit, float(HABIT_COST), float(PLANNING_COST)), "habit": habit}
+
+
+class RunningArbitrator:
+    """Base of the rules that keep per-member running statistics (``STATS``: name -> initial value).
+
+    The statistics learn in training (``observe(..., adapt=True)``) and stay frozen in the tests; they
+    are saved in checkpoints (:meth:`state_dict`) and loaded for the tests.
+    """
+
+    STATS: dict[str, float] = {}
+
+    def __init__(self, cfg: AgentConfig) -> None:
+        self.planning_episodes = cfg.planning_episodes
+        self.rate = 1.0 / cfg.arbitration_window
+        self.prior_weight = cfg.arbitration_prior_weight
+        self.delta_threshold = cfg.delta_threshold
+        self.stats: dict[str, torch.Tensor] = {}
+        self.last_inputs: dict[str, torch.Tensor] = {}
+
+    def stat(self, name: str, E: int) -> torch.Tensor:
+        if name not in self.stats or len(self.stats[name]) != E:
+            self.stats[name] = torch.full((E,), float(self.STATS[name]))
+        return self.stats[name]
+
+    def state_dict(self) -> dict[str, torch.Tensor]:
+        return {k: v.clone() for k, v in self.stats.items()}
+
+    def load_state_dict(self, d: dict[str, torch.Tensor]) -> None:
+        unknown = set(d) - set(self.STATS)
+        if unknown:
+            raise ValueError(f"{type(self).__name__}: unknown statistics {sorted(unknown)}; known: {sorted(self.STATS)}")
+        lengths = {tuple(torch.as_tensor(v).shape) for v in d.values()}
+        if len(lengths) > 1 or any(len(shape) != 1 for shape in lengths):
+            raise ValueError(f"{type(self).__name__}: statistics must be [E] tensors of one length, got {lengths}")
+        self.stats = {k: torch.as_tensor(v, dtype=torch.float32).clone() for k, v in d.items()}
+
+    def observe(self, info: Any, mask: np.ndarray, adapt: bool = True) -> None:
+        """Learn from the step in ``info`` for the members in ``mask`` (only when ``adapt``)."""
+        if adapt:
+            self.learn(step_signals(info), torch.as_tensor(np.asarray(mask, dtype=bool)))
+
+    def learn(self, sig: dict[str, torch.Tensor], mask: torch.Tensor) -> None:
+        raise NotImplementedError
+
+    def planning_phase(self, ctx: ArbitrationContext) -> torch.Tensor:
+        return ctx.episode < self.planning_episodes
+
+
+class UncertaintyArbitrator(RunningArbitrator):
+    """Daw, Niv & Dayan (2005): the system whose prediction is less uncertain acts.
+
+    Habit: ``U_h`` = running mean of delta^2 (the critic's one-step error, reward units = cm), shrunk
+    towards by this episode's own delta^2; planning: ``U_p`` = running mean of the forward model's squared
+    end-effector error (cm^2, the error of its one-step reward prediction, seen steps). Habit iff ``U_h < U_p``.
+    """
+
+    STATS = {"habit_var": float("nan"), "planning_var": float("nan")}
+
+    def learn(self, sig: dict[str, torch.Tensor], mask: torch.Tensor) -> None:
+        E = len(mask)
+        self.stats["habit_var"] = ema(self.stat("habit_var", E), sig["delta"] ** 2, self.rate, mask)
+        self.stats["planning_var"] = ema(self.stat("planning_var", E), sig["end_error"] ** 2, self.rate, mask)
+
+    def use_habit(self, ctx: ArbitrationContext) -> torch.Tensor:
+        habit_u = blend(self.stat("habit_var", ctx.E), ctx.recent_deltas ** 2, self.prior_weight)
+        plan_u = self.stat("planning_var", ctx.E)
+        self.last_inputs = {"habit_uncertainty": habit_u, "planning_uncertainty": plan_u.clone()}
+        return (habit_u < plan_u) & ~self.planning_phase(ctx)
+
+
+class ReliabilityArbitrator(RunningArbitrator):
+    """Lee, Shimojo & O'Doherty (2014): reliabilities drive a two-state transition between the systems.
+
+    Reliability of the habit ``chi_h``: the running rate of ``|delta| < delta_threshold`` (the reward
+    prediction error is small), shrunk towards by this episode's own; of the planner ``chi_p``: the running
+    rate of a forward-model end-effector error below the zone radius (the state prediction error is small).
+    The probability of planning control moves as ``P <- P + alpha (1 - P) - beta P`` with
+    ``alpha = A / (1 + exp(B chi_h))`` (habit -> planning) and ``beta = A / (1 + exp(B chi_p))``
+    (planning -> habit); the habit acts where ``P < 0.5``.
+    """
+
+    STATS = {"habit_reliability": float("nan"), "planning_reliability": float("nan"), "p_planning": 1.0}
+
+    def __init__(self, cfg: AgentConfig) -> None:
+        super().__init__(cfg)
+        self.A, self.B = cfg.reliability_rate, cfg.reliability_slope
+        self.zone_radius = 0.5  # the task's, read from the context at every decision
+        self._chi: tuple[torch.Tensor, torch.Tensor] | None = None
+
+    def learn(self, sig: dict[str, torch.Tensor], mask: torch.Tensor) -> None:
+        E = len(mask)
+        small_rpe = torch.where(torch.isfinite(sig["delta"]), (sig["delta"].abs() < self.delta_threshold).float(),
+                                float("nan"))
+        small_spe = torch.where(torch.isfinite(sig["end_error"]), (sig["end_error"] < self.zone_radius).float(),
+                                float("nan"))
+        self.stats["habit_reliability"] = ema(self.stat("habit_reliability", E), small_rpe, self.rate, mask)
+        self.stats["planning_reliability"] = ema(self.stat("planning_reliability", E), small_spe, self.rate, mask)
+
+    def observe(self, info: Any, mask: np.ndarray, adapt: bool = True) -> None:
+        """The statistics learn (``adapt``); the probability of planning control moves at every step."""
+        super().observe(info, mask, adapt)
+        if self._chi is None:
+            return
+        chi_h, chi_p = (torch.nan_to_num(c, nan=0.0) for c in self._chi)
+        p = self.stat("p_planning", len(mask))
+        alpha, beta = self.A / (1 + torch.exp(self.B * chi_h)), self.A / (1 + torch.exp(self.B * chi_p))
+        moved = (p + alpha * (1 - p) - beta * p).clamp(0.0, 1.0)
+        self.stats["p_planning"] = torch.where(torch.as_tensor(np.asarray(mask, dtype=bool)), moved, p)
+
+    def use_habit(self, ctx: ArbitrationContext) -> torch.Tensor:
+        self.zone_radius = ctx.zone_radius
+        small = torch.where(torch.isfinite(ctx.recent_deltas), (ctx.recent_deltas.abs() < self.delta_threshold).float(),
+                            float("nan"))
+        chi_h = blend(self.stat("habit_reliability", ctx.E), small, self.prior_weight)
+        chi_p = self.stat("planning_reliability", ctx.E).clone()
+        self._chi = (chi_h, chi_p)
+        p = self.stat("p_planning", ctx.E)
+        self.last_inputs = {"habit_reliability": chi_h, "planning_reliability": chi_p, "p_planning": p.clone()}
+        return (p < 0.5) & ~self.planning_phase(ctx)
+
+
+class SpeedAccuracyArbitrator(RunningArbitrator):
+    """Plan only where planning's expected gain in distance is worth its extra time (Keramati et al. 2011).
+
+    The forward model predicts where the habit's proposal puts the hand: its expected miss
+    ``m_h = max(|f(s, pi(s)) - target| - r, 0)`` (cm outside the zone). The planner's expected miss ``m_p``
+    is the running mean of the misses measured after planning actions (the inverse model is not run to
+    decide). Planning costs ``PLANNING_COST - HABIT_COST`` (2) time units more than a habit, each worth
+    the agent's progress per time unit ``rho`` (running mean of the estimated distance gained per unit).
+    Habit iff ``m_h - m_p <= 2 rho``: the threshold follows from the cost and the task, not fixed at 1.
+    """
+
+    STATS = {"progress_rate": float("nan"), "planning_miss": float("nan")}
+
+    def __init__(self, cfg: AgentConfig) -> None:
+        super().__init__(cfg)
+        self.zone_radius = 0.5  # the task's, read from the context at every decision
+
+    def learn(self, sig: dict[str, torch.Tensor], mask: torch.Tensor) -> None:
+        E = len(mask)
+        rate = (sig["before"] - sig["after"]) / sig["cost"]
+        self.stats["progress_rate"] = ema(self.stat("progress_rate", E), rate, self.rate, mask)
+        miss = (sig["after"] - self.zone_radius).clamp(min=0.0)
+        self.stats["planning_miss"] = ema(self.stat("planning_miss", E), miss, self.rate, mask & ~sig["habit"])
+
+    def use_habit(self, ctx: ArbitrationContext) -> torch.Tensor:
+        if ctx.habit_action is None or ctx.predict_end is None:
+            raise ValueError("SpeedAccuracyArbitrator needs the context's habit_action and predict_end")
+        self.zone_radius = ctx.zone_radius
+        target = ctx.state[:, 4:6]
+        habit_end = ctx.predict_end(ctx.habit_action)
+        habit_miss = (torch.linalg.vector_norm(habit_end - target, dim=1) - ctx.zone_radius).clamp(min=0.0).cpu()
+        plan_miss = torch.nan_to_num(self.stat("planning_miss", ctx.E), nan=0.0)
+        threshold = (PLANNING_COST - HABIT_COST) * self.stat("progress_rate", ctx.E)
+        gain = habit_miss - plan_miss
+        self.last_inputs = {"habit_miss": habit_miss, "planning_miss": plan_miss, "gain": gain,
+                            "threshold": threshold.clone()}
+        return (gain <= threshold) & ~self.planning_phase(ctx)
+
+
+class VisionAwareArbitrator:
+    """Another kind's rule (``vision_aware_base``, default the paper's) while the arm is seen; in the dark
+    the habit is suppressed (``vision_aware_dark = "suppress"``, the paper's conclusion) or acts only where
+    the forward model predicts its proposal lands in the zone or at least ``vision_check_ratio`` closer
+    (``"check"``)."""
+
+    def __init__(self, cfg: AgentConfig) -> None:
+        from apac_mj import kinds
+
+        # the base is built with the default base, so that naming a vision-aware kind fails below, not recursing
+        self.base = kinds.get(cfg.vision_aware_base).arbitrator(dataclasses.replace(cfg, vision_aware_base=kinds.DEFAULT))
+        if isinstance(self.base, VisionAwareArbitrator):
+            raise ValueError(f"vision_aware_base {cfg.vision_aware_base!r} is itself vision-aware; name a kind "
+                             "with another rule (e.g. apac)")
+        self.dark, self.ratio = cfg.vision_aware_dark, cfg.vision_check_ratio
+        self.last_inputs: dict[str, torch.Tensor] = {}
+
+    def use_habit(self, ctx: ArbitrationContext) -> torch.Tensor:
+        habit = torch.as_tensor(self.base.use_habit(ctx), dtype=torch.bool)
+        dark = ~ctx.vision.to(habit.device)
+        inputs = dict(getattr(self.base, "last_inputs", {}), vision=ctx.vision.float())
+        if self.dark == "suppress":
+            allowed = ~dark
+        else:
+            if ctx.habit_action is None or ctx.predict_end is None:
+                raise ValueError("vision_aware_dark='check' needs the context's habit_action and predict_end")
+            target = ctx.state[:, 4:6]
+            now = torch.linalg.vector_norm(ctx.state[:, :2] - target, dim=1)
+            after = torch.linalg.vector_norm(ctx.predict_end(ctx.habit_action) - target, dim=1)
+            allowed = (~dark | (after <= torch.clamp(self.ratio * now, min=ctx.zone_radius))).cpu()
+            inputs["predicted_habit_distance"] = after.cpu()
+        self.last_inputs = inputs
+        return habit & allowed
+
+    def observe(self, info: Any, mask: np.ndarray, adapt: bool = True) -> None:
+        if hasattr(self.base, "observe"):
+            self.base.observe(info, mask, adapt)
+
+    def state_dict(self) -> dict[str, torch.Tensor]:
+        return self.base.state_dict() if hasattr(self.base, "state_dict") else {}
+
+    def load_state_dict(self, d: dict[str, torch.Tensor]) -> None:
+        if hasattr(self.base, "load_state_dict"):
+            self.base.load_state_dict(d)
+        elif d:
+            raise ValueError(f"{type(self.base).__name__} keeps no statistics, got {sorted(d)}")
 
 
 def push_delta(history: np.ndarray, delta: np.ndarray, mask: np.ndarray) -> np.ndarray:

@@ -79,6 +79,23 @@ class AgentConfig:
     #: reward well) or "signed" (delta < 1, Algorithm 2 read literally: "RPE < 1").
     delta_rule: str = "abs"
 
+    # -- arbitrators beyond the paper (apac_mj/arbitrator.py, docs/arbitrators.md) --------
+    #: Window (transitions) of the running statistics of the uncertainty-, reliability- and
+    #: speed-accuracy rules: exponential running means with rate 1 / window.
+    arbitration_window: int = 100
+    #: Weight (in transitions) of a running statistic against this episode's own TD errors when the
+    #: uncertainty and reliability rules blend them.
+    arbitration_prior_weight: float = 4.0
+    #: Reliability rule (Lee et al. 2014): the transition rates' amplitude A and slope B.
+    reliability_rate: float = 0.5
+    reliability_slope: float = 6.0
+    #: Vision-aware rule: the kind whose rule acts while the arm is seen (default: the paper's APAC).
+    vision_aware_base: str = kinds.DEFAULT
+    #: Vision-aware rule without vision: "suppress" (the planner acts) or "check" (the habit acts only
+    #: where the forward model predicts its proposal lands in the zone or ``vision_check_ratio`` closer).
+    vision_aware_dark: str = "suppress"
+    vision_check_ratio: float = 0.5
+
     # -- motor babbling -------------------------------------------------------
     #: Episodes of random actions before learning (the paper gives no number).
     babbling_episodes: int = 10
@@ -133,6 +150,13 @@ class AgentConfig:
                               ("delta_rule", ("abs", "signed"))):
             if getattr(self, name) not in choices:
                 raise ValueError(f"{name} must be one of {choices}, got {getattr(self, name)!r}")
+        kinds.get(self.vision_aware_base)
+        if self.vision_aware_dark not in ("suppress", "check"):
+            raise ValueError(f"vision_aware_dark must be 'suppress' or 'check', got {self.vision_aware_dark!r}")
+        if self.arbitration_window < 1 or self.arbitration_prior_weight < 0:
+            raise ValueError("arbitration_window must be >= 1 and arbitration_prior_weight >= 0")
+        if not (0 < self.vision_check_ratio <= 1) or self.reliability_rate <= 0 or self.reliability_slope <= 0:
+            raise ValueError("vision_check_ratio must be in (0, 1], reliability_rate and reliability_slope > 0")
         if self.critic_action not in ("executed", "commanded"):
             raise ValueError(f"critic_action must be 'executed' or 'commanded', got {self.critic_action!r}")
         if self.ou_sigma < 0 or (self.ou_sigma_initial is not None and self.ou_sigma_initial < 0):

@@ -127,7 +127,8 @@ def evaluate(run_dir: str | Path, protocols: Sequence[str] = ("grid", "occluded"
         targets = evaluation_targets(spec, lengths, own, grid_only=protocol == "generalization", region=reg)
         targets = [t[:limit] for t in targets] if limit is not None else targets
         rows = run_protocol(cfg, agent, spec, lengths, targets, occluded=protocol == "occluded",
-                            progress=progress, on_step=on_step, on_episode_start=on_episode_start)
+                            progress=progress, on_step=on_step, on_episode_start=on_episode_start,
+                            arbitrator_state=ckpt.get("arbitrator"))
         df = pd.DataFrame(rows)
         if protocol == "occluded":
             df = df.drop(columns=["path_x", "path_y"])
@@ -178,11 +179,15 @@ def _eval_env(cfg: TrainConfig, spec: TaskSpec, lengths: np.ndarray, occluded: b
 
 def run_protocol(cfg: TrainConfig, agent: Agent, spec: TaskSpec, lengths: np.ndarray, targets: list[np.ndarray],
                  occluded: bool, progress: bool = False, on_step: OnStep | None = None,
-                 on_episode_start: OnEpisodeStart | None = None) -> list[dict[str, Any]]:
-    """Episode ``i`` of every member goes to its ``targets[k][i]``; all members side by side."""
+                 on_episode_start: OnEpisodeStart | None = None,
+                 arbitrator_state: dict[str, Any] | None = None) -> list[dict[str, Any]]:
+    """Episode ``i`` of every member goes to its ``targets[k][i]``; all members side by side.
+
+    The arbitrator starts from ``arbitrator_state`` (the checkpoint's running statistics) and keeps
+    them frozen, like the networks."""
     env = _eval_env(cfg, spec, lengths, occluded)
-    episodes = EpisodeLoop(agent, arbitrator_for(cfg.agent), env, zone_radius=spec.zone_radius, on_step=on_step,
-                           on_episode_start=on_episode_start)
+    episodes = EpisodeLoop(agent, arbitrator_for(cfg.agent, arbitrator_state), env, zone_radius=spec.zone_radius,
+                           on_step=on_step, on_episode_start=on_episode_start, adapt=False)
     counts = np.array([len(t) for t in targets])
     rows = []
     for i in tqdm(range(int(counts.max(initial=0))), disable=not progress, desc="evaluate", unit="target"):

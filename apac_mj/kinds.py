@@ -104,9 +104,20 @@ def names() -> tuple[str, ...]:
     return tuple(_KINDS)
 
 
-def arbitrator_for(cfg: AgentConfig) -> Arbitrator:
-    """The arbitrator of ``cfg.agent``'s kind, built from ``cfg``."""
-    return get(cfg.agent).arbitrator(cfg)
+def arbitrator_for(cfg: AgentConfig, state: dict | None = None) -> Arbitrator:
+    """The arbitrator of ``cfg.agent``'s kind, built from ``cfg``, with the running statistics ``state``
+    (a checkpoint's ``"arbitrator"`` entry) loaded where given and non-empty."""
+    arbitrator = get(cfg.agent).arbitrator(cfg)
+    if state:
+        if not hasattr(arbitrator, "load_state_dict"):
+            raise ValueError(f"the {cfg.agent!r} arbitrator keeps no statistics, but the checkpoint has {sorted(state)}")
+        arbitrator.load_state_dict(state)
+    return arbitrator
+
+
+def arbitrator_state(arbitrator: Arbitrator) -> dict:
+    """What a checkpoint keeps of ``arbitrator``: its ``state_dict()`` (empty for rules without one)."""
+    return arbitrator.state_dict() if hasattr(arbitrator, "state_dict") else {}
 
 
 def _builtin(name: str) -> Callable[[AgentConfig], Arbitrator]:
@@ -125,7 +136,15 @@ register(AgentKind("ddpg", "DDPG", "tab:orange", _builtin("AlwaysHabit"), uses_p
                    occluded_reason="DDPG has no forward model to move on"))
 register(AgentKind("spac", "SPAC", "tab:green", _builtin("AlwaysPlan"), uses_habit=False))
 register(AgentKind("apac", "APAC", "tab:blue", _builtin("DeltaArbitrator")))
-#: The paper's kinds, registered here (the default agents of a preset).
+# Beyond the paper (docs/arbitrators.md): APAC's two systems under other arbitration rules.
+register(AgentKind("apac_uncertainty", "APAC-U (uncertainty)", "tab:purple", _builtin("UncertaintyArbitrator")))
+register(AgentKind("apac_reliability", "APAC-R (reliability)", "tab:brown", _builtin("ReliabilityArbitrator")))
+register(AgentKind("apac_speed_accuracy", "APAC-SA (speed-accuracy)", "tab:red",
+                   _builtin("SpeedAccuracyArbitrator")))
+register(AgentKind("apac_vision", "APAC-V (vision-aware)", "tab:cyan", _builtin("VisionAwareArbitrator")))
+#: The kinds registered here (the built-in ones: they cannot be removed).
 BUILTIN = names()
+#: The paper's kinds (the default agents of a preset).
+PAPER_KINDS = BUILTIN[:3]
 #: The default kind.
 DEFAULT = "apac"

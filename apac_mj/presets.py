@@ -65,7 +65,7 @@ class Preset:
     #: One paragraph saying what the grid is for (shown in report.md).
     description: str = ""
     #: Agent kinds (apac_mj.kinds): the paper's ddpg, spac, apac or any registered one.
-    agents: tuple[str, ...] = kinds.BUILTIN
+    agents: tuple[str, ...] = kinds.PAPER_KINDS
     #: Training conditions: the paper's four, or any task (file or registered) not ending in "_train_region"
     #: or "_occluded".
     conditions: tuple[str, ...] = CONDITIONS

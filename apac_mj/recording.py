@@ -45,6 +45,10 @@ DISTANCE = "series/distance"
 ABS_DELTA = "series/arbitration/abs_delta"
 DELTA_THRESHOLD = "series/arbitration/threshold"
 CONTROLLER = "series/arbitration/controller"
+#: The arbitrator's decision inputs, one series each: ``ARBITRATION_INPUTS/<name>`` (the rule's ``last_inputs``).
+ARBITRATION_INPUTS = "series/arbitration/inputs"
+#: The integrator's error: mean over hand and elbow of |estimate - MuJoCo| (cm).
+ESTIMATE_ERROR = "series/state_estimate_error"
 FORWARD_ERROR = "series/forward_model_error"
 KINEMATICS_ERROR = "series/kinematics_error"
 L1 = "series/link_lengths/l1"
@@ -52,7 +56,8 @@ L2 = "series/link_lengths/l2"
 VISION = "series/vision"
 EVENTS = "events"
 
-#: Entity paths every recording holds (the forward-model arm only where the agent predicts one).
+#: Entity paths every recording holds (the forward-model arm, the state-estimate error and the arbitrator's
+#: inputs only where an agent acted).
 ENTITY_PATHS = (
     RENDER, FIELD, ARM_MUJOCO, ARM_MOTION_FUNCTION, TARGET, TARGET_ZONE, PATH, REWARD, DISTANCE,
     ABS_DELTA, DELTA_THRESHOLD, CONTROLLER, FORWARD_ERROR, KINEMATICS_ERROR, L1, L2, VISION, EVENTS,
@@ -96,6 +101,10 @@ class StepRecord:
     vision: bool = True
     reached: bool = False
     done: bool = False
+    #: The integrator's estimate of ``true_arm`` after the step (NaN where none).
+    estimated_arm: np.ndarray = dataclasses.field(default_factory=lambda: np.full(4, np.nan))
+    #: The arbitrator's inputs to the decision that chose this step's controller (``name -> value``).
+    arbitration: dict[str, float] = dataclasses.field(default_factory=dict)
 
     @classmethod
     def from_step_info(cls, info: Any, member: int) -> "StepRecord":
@@ -110,6 +119,8 @@ class StepRecord:
             reward=float(at("reward")), distance=float(at("distance")), delta=float(at("delta")),
             habit=bool(at("habit")), predicted_arm=_f64(at("predicted_arm")),
             vision=bool(at("vision")), reached=bool(at("reached")), done=bool(at("done")),
+            estimated_arm=_f64(np.asarray(info.next_state)[member, :4]),
+            arbitration={k: float(np.asarray(v)[member]) for k, v in getattr(info, "arbitration", {}).items()},
         )
 
 
@@ -121,6 +132,11 @@ def kinematics_error(rec: StepRecord, origin: Sequence[float] = DEFAULT_ORIGIN) 
     """max |MuJoCo arm - motion function arm| over both points and both coordinates (cm)."""
     end, elbow = motion_function(*rec.joint_angles, *rec.link_lengths, origin)
     return float(np.max(np.abs(rec.true_arm - np.concatenate([end, elbow]))))
+
+
+def estimate_error(rec: StepRecord) -> float:
+    """Mean over hand and elbow of the integrator's error |estimate - MuJoCo| (cm); NaN without one."""
+    return float(np.linalg.norm((rec.estimated_arm - rec.true_arm).reshape(2, 2), axis=1).mean())
 
 
 def forward_model_error(rec: StepRecord) -> float:
@@ -148,8 +164,10 @@ def default_blueprint(plane_size: Sequence[float] = (30.0, 30.0)) -> rrb.Bluepri
 
     series = rrb.Vertical(
         view("distance, reward", DISTANCE, REWARD),
-        rrb.TimeSeriesView(origin="series/arbitration", name="|delta| vs threshold, controller (1 habit, 0 planning)"),
-        view("forward-model error (cm), vision (1 seen, 0 occluded)", FORWARD_ERROR, VISION),
+        view("|delta| vs threshold, controller (1 habit, 0 planning)", ABS_DELTA, DELTA_THRESHOLD, CONTROLLER),
+        rrb.TimeSeriesView(origin=ARBITRATION_INPUTS, name="why: the arbitrator's inputs to each decision"),
+        view("forward-model error, state-estimate error (cm), vision (1 seen, 0 not)", FORWARD_ERROR,
+             ESTIMATE_ERROR, VISION),
         view("kinematics error: max |MuJoCo - motion function| (cm)", KINEMATICS_ERROR),
         view("link lengths (cm)", L1, L2),
     )
@@ -325,6 +343,8 @@ class Recording:
             CONTROLLER: float("nan") if rec.step == 0 else HABIT if rec.habit else PLANNING,  # none acts at step 0
             FORWARD_ERROR: forward_model_error(rec), KINEMATICS_ERROR: kinematics_error(rec, self.origin),
             L1: rec.link_lengths[0], L2: rec.link_lengths[1], VISION: 1.0 if rec.vision else 0.0,
+            ESTIMATE_ERROR: estimate_error(rec),
+            **{f"{ARBITRATION_INPUTS}/{name}": value for name, value in rec.arbitration.items()},
         }
         for path, value in values.items():
             if np.isfinite(value):
@@ -334,6 +354,9 @@ class Recording:
         e, k = rec.episode, rec.step
         if k > 0 and not rec.vision:
             self.event(e, k, f"occluded: arm and target not seen at step {k}", level="DEBUG")
+        if k > 0 and rec.arbitration:
+            why = ", ".join(f"{name} {value:.3g}" for name, value in rec.arbitration.items())
+            self.event(e, k, f"step {k - 1}: {'habit' if rec.habit else 'planning'} acted ({why})", level="DEBUG")
         if rec.reached:
             self.event(e, k, f"target reached at step {k} (distance {rec.distance:.3f} cm)")
         elif rec.done:

@@ -65,6 +65,9 @@ class StepInfo:
     link_lengths: np.ndarray   # [E, 2] after the step
     next_state: np.ndarray     # [E, 6] the integrator's state after the step (s_{t+1})
     terminal: np.ndarray       # [E] bool: the transition is terminal for learning (perceived reach)
+    #: The arbitrator's decision inputs at this step, ``name -> [E]`` (its ``last_inputs``; empty for
+    #: rules without inputs): what recordings show as "why".
+    arbitration: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
 
 
 #: Hooks: ``on_step(info, vec_env)`` after every step, ``on_episode_start(members [E] bool, vec_env)`` after resets.
@@ -133,15 +136,22 @@ class EpisodeState:
         self.plan_n += counted & ~info.habit
         self.step += mask
 
-    def context(self, episode: np.ndarray, agent: Any) -> ArbitrationContext:
+    def context(self, episode: np.ndarray, agent: Any, zone_radius: float = 0.5) -> ArbitrationContext:
         """The arbitrator's view of every member at this step (``episode`` as the arbitrator reads it)."""
         uncertainty = agent.uncertainty(self.state) if hasattr(agent, "uncertainty") else {}
+        state = self.state
+
+        def predict_end(action: torch.Tensor) -> torch.Tensor:
+            return agent.predict_arm(state[:, :4], agent.executable(action, state))[:, :2]
+
         # copies (torch.tensor), not views of the carried arrays: a context kept by a rule stays as it was
         return ArbitrationContext(episode=torch.tensor(episode), step=torch.tensor(self.step),
                                   last_delta=torch.tensor(self.last_delta, dtype=torch.float32),
                                   recent_deltas=torch.tensor(self.recent_deltas, dtype=torch.float32),
-                                  vision=torch.tensor(self.vision), state=self.state, uncertainty=uncertainty,
-                                  forward_error=torch.tensor(self.forward_error, dtype=torch.float32))
+                                  vision=torch.tensor(self.vision), state=state, uncertainty=uncertainty,
+                                  forward_error=torch.tensor(self.forward_error, dtype=torch.float32),
+                                  habit_action=agent.actor_action(state), predict_end=predict_end,
+                                  zone_radius=float(zone_radius))
 
 
 def select_action(agent: Any, arbitrator: Arbitrator, ctx: ArbitrationContext, active: np.ndarray,
@@ -152,11 +162,18 @@ def select_action(agent: Any, arbitrator: Arbitrator, ctx: ArbitrationContext, a
     if tuple(habit.shape) != (ctx.E,):
         raise ValueError(f"{type(arbitrator).__name__}.use_habit must return [E] = ({ctx.E},) bools, "
                          f"got shape {tuple(habit.shape)}")
-    proposal = torch.where(habit[:, None], agent.actor_action(state), agent.inverse_action(state))
+    habit_action = agent.actor_action(state) if ctx.habit_action is None else ctx.habit_action
+    proposal = torch.where(habit[:, None], habit_action, agent.inverse_action(state))
     if explore:
         sigma = agent.cfg.ou_sigma_at(ctx.episode.numpy())
         proposal = proposal + agent.noise.sample(torch.as_tensor(active), sigma).to(state.device)
     return proposal.clamp(-ACTION_BOUND, ACTION_BOUND), habit
+
+
+def decision_inputs(arbitrator: Arbitrator) -> dict[str, np.ndarray]:
+    """The arbitrator's ``last_inputs`` (``name -> [E]``) as float numpy arrays (empty if it keeps none)."""
+    return {k: torch.as_tensor(v).detach().float().cpu().numpy().copy()
+            for k, v in getattr(arbitrator, "last_inputs", {}).items()}
 
 
 Override = Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
@@ -172,9 +189,12 @@ class EpisodeLoop:
     """
 
     def __init__(self, agent: Any, arbitrator: Arbitrator, env: VecEnv, zone_radius: float | None = None,
-                 on_step: OnStep | None = None, on_episode_start: OnEpisodeStart | None = None) -> None:
+                 on_step: OnStep | None = None, on_episode_start: OnEpisodeStart | None = None,
+                 adapt: bool = True) -> None:
         self.agent, self.arbitrator, self.env, self.zone_radius = agent, arbitrator, env, zone_radius
         self.on_step, self.on_episode_start = on_step, on_episode_start
+        #: The arbitrator's running statistics learn from the steps (training); False: frozen (tests).
+        self.adapt = adapt
 
     def start(self, st: EpisodeState, mask: np.ndarray, reset_noise: bool = True) -> None:
         """New episodes for the members in ``mask``: reset their environment and carried state."""
@@ -189,17 +209,23 @@ class EpisodeLoop:
             arbitration_episode: np.ndarray | None = None, override: Override | None = None) -> StepInfo:
         """Arbitrate (the arbitrator reads ``arbitration_episode``, default ``episode``), let ``override``
         replace the action (the trainer's babbling), step the ``active`` members."""
-        ctx = st.context(episode if arbitration_episode is None else arbitration_episode, self.agent)
+        radius = self.env.spec.zone_radius if self.zone_radius is None else self.zone_radius
+        ctx = st.context(episode if arbitration_episode is None else arbitration_episode, self.agent, radius)
         action, habit = select_action(self.agent, self.arbitrator, ctx, active, explore)
+        inputs = decision_inputs(self.arbitrator)
         if override is not None:
             action, habit = override(action, habit)
-        return agent_step(self.agent, self.env, st.state, episode, st.step, active, action, habit,
+        info = agent_step(self.agent, self.env, st.state, episode, st.step, active, action, habit,
                           zone_radius=self.zone_radius)
+        info.arbitration = inputs
+        return info
 
     def advance(self, st: EpisodeState, info: StepInfo, active: np.ndarray, counted: np.ndarray | None = None,
                 next_state: np.ndarray | None = None) -> None:
         """Carry ``st`` past ``info`` (see :meth:`EpisodeState.advance`), then the step hook."""
         st.advance(info, active, counted, next_state)
+        if hasattr(self.arbitrator, "observe"):
+            self.arbitrator.observe(info, active if counted is None else counted, self.adapt)
         if self.on_step is not None:
             self.on_step(info, self.env)
 

@@ -60,7 +60,7 @@ from apac_mj import checkpoint
 from apac_mj.agent import Agent
 from apac_mj.config import TrainConfig, task_spec, to_dict
 from apac_mj.files import atomic_write_parquet
-from apac_mj.kinds import arbitrator_for
+from apac_mj.kinds import arbitrator_for, arbitrator_state
 from apac_mj.kinematics import Geometry
 from apac_mj.rollout import EpisodeLoop, EpisodeState, OnEpisodeStart, OnStep, StepInfo
 from apac_mj.vec_env import VecEnv
@@ -141,22 +141,23 @@ def train(cfg: TrainConfig, out_dir: str | Path, progress: bool = True, on_step:
     agent = Agent(cfg.agent, seeds, device=cfg.device, precision=cfg.precision,
                   geometry=Geometry.from_spec(task_spec(cfg)))
     babble_gens = babbling_generators(seeds)
+    arbitrator = arbitrator_for(cfg.agent)
     loop, rows, saved_at = LoopState.fresh(len(seeds), cfg.agent.babbling_episodes, agent.device), [], None
     if checkpoint.run_checkpoints(out_dir / "checkpoints"):
-        loop, rows = _restore(out_dir, config, agent, env, babble_gens)
+        loop, rows = _restore(out_dir, config, agent, env, babble_gens, arbitrator)
         saved_at = loop.slowest()
         _say_resume(out_dir, loop, run_episodes, cfg.episodes)
     _write_config(out_dir, config, run_episodes)
     recorder = _recorder(out_dir, record_every, config)
     on_step, on_episode_start = _chain_hooks(recorder, on_step, on_episode_start)
-    episodes = EpisodeLoop(agent, arbitrator_for(cfg.agent), env, on_step=on_step,
+    episodes = EpisodeLoop(agent, arbitrator, env, on_step=on_step,
                            on_episode_start=on_episode_start)
     bar, window = _progress_bar(cfg, loop, rows, progress)
     saved = _Saved(saved_at)
     try:
         _loop(cfg, out_dir, config, loop, rows, saved, episodes, babble_gens, bar, window)
         if saved.at != loop.slowest():  # not saved just now by the periodic checkpoint
-            _save(out_dir, config, loop, agent, env, babble_gens, rows)
+            _save(out_dir, config, loop, episodes, babble_gens, rows)
         checkpoint.atomic_write_bytes(out_dir / "DONE", lambda f: f.write(b"done\n"))
     except KeyboardInterrupt:
         bar.close()
@@ -209,7 +210,7 @@ def _loop(cfg: TrainConfig, out_dir: Path, config: dict[str, Any], loop: LoopSta
         _progress(bar, loop, cfg.episodes, window)
         if loop.slowest() // cfg.checkpoint_every > loop.checkpoints_done:
             loop.checkpoints_done = loop.slowest() // cfg.checkpoint_every
-            _save(out_dir, config, loop, episodes.agent, episodes.env, babble_gens, rows)
+            _save(out_dir, config, loop, episodes, babble_gens, rows)
             saved.at = loop.slowest()
 
 
@@ -460,11 +461,12 @@ def write_metrics(path: Path, rows: list[dict[str, Any]]) -> None:
     atomic_write_parquet(path, pd.DataFrame(rows, columns=list(METRIC_COLUMNS)))
 
 
-def _save(out_dir: Path, config: dict[str, Any], loop: LoopState, agent: Agent, env: VecEnv,
+def _save(out_dir: Path, config: dict[str, Any], loop: LoopState, episodes: EpisodeLoop,
           babble_gens: list[torch.Generator], rows: list[dict[str, Any]]) -> None:
     """metrics.parquet, then the checkpoint as latest.pt (the one before it kept as previous.pt)."""
     write_metrics(out_dir / "metrics.parquet", rows)
-    ckpt = {"config": config, "loop": loop.state_dict(), "agent": agent.state_dict(), "env": env.get_state(),
+    ckpt = {"config": config, "loop": loop.state_dict(), "agent": episodes.agent.state_dict(),
+            "env": episodes.env.get_state(), "arbitrator": arbitrator_state(episodes.arbitrator),
             "babbling_generators": [g.get_state() for g in babble_gens], "metric_rows": len(rows),
             "torch_rng": torch.get_rng_state()}
     ckpt_dir = out_dir / "checkpoints"
@@ -473,14 +475,14 @@ def _save(out_dir: Path, config: dict[str, Any], loop: LoopState, agent: Agent, 
 
 
 def _restore(out_dir: Path, config: dict[str, Any], agent: Agent, env: VecEnv,
-             babble_gens: list[torch.Generator]) -> tuple[LoopState, list[dict[str, Any]]]:
+             babble_gens: list[torch.Generator], arbitrator: Any) -> tuple[LoopState, list[dict[str, Any]]]:
     """Load the newest intact checkpoint (warning when it is not latest.pt) into the agent and env."""
     metrics = out_dir / "metrics.parquet"
     restored: dict[str, Any] = {}
 
     def check(ckpt: dict[str, Any], path: Path) -> None:
         restored["rows"] = read_metric_rows(metrics, int(ckpt["metric_rows"]))
-        restored["loop"] = _apply(ckpt, path, config, agent, env, babble_gens)
+        restored["loop"] = _apply(ckpt, path, config, agent, env, babble_gens, arbitrator)
 
     checkpoint.load_newest_intact(checkpoint.run_checkpoints(out_dir / "checkpoints"), required=CKPT_KEYS,
                                   check=check, warn=say)
@@ -488,7 +490,7 @@ def _restore(out_dir: Path, config: dict[str, Any], agent: Agent, env: VecEnv,
 
 
 def _apply(ckpt: dict[str, Any], path: Path, config: dict[str, Any], agent: Agent, env: VecEnv,
-           babble_gens: list[torch.Generator]) -> LoopState:
+           babble_gens: list[torch.Generator], arbitrator: Any) -> LoopState:
     """Put a loaded checkpoint into the agent, the environments and the generators (same config but
     the episode count, which an extended run changes)."""
     diff = _diff({**ckpt["config"], "episodes": None}, {**config, "episodes": None})
@@ -501,7 +503,9 @@ def _apply(ckpt: dict[str, Any], path: Path, config: dict[str, Any], agent: Agen
         for g, s in zip(babble_gens, ckpt["babbling_generators"], strict=True):
             g.set_state(s)
         loop = LoopState.from_state_dict(ckpt["loop"], agent.device)
-    except (KeyError, ValueError, RuntimeError, TypeError) as e:
+        if ckpt.get("arbitrator"):
+            arbitrator.load_state_dict(ckpt["arbitrator"])
+    except (KeyError, ValueError, RuntimeError, TypeError, AttributeError) as e:
         raise checkpoint.CheckpointError(f"checkpoint {path} is corrupt or incompatible: "
                                          f"{type(e).__name__}: {e}") from None
     torch.set_rng_state(ckpt["torch_rng"])

@@ -1,0 +1,194 @@
+"""The arbitrators beyond the paper: each rule's decision against a hand computation of its equations,
+their running statistics (learned in training, frozen in tests, saved in checkpoints), and the "why"
+that recordings show."""
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+
+from apac_mj import checkpoint, kinds
+from apac_mj.arbitrator import (HABIT_COST, PLANNING_COST, ArbitrationContext, ReliabilityArbitrator,
+                                SpeedAccuracyArbitrator, UncertaintyArbitrator, VisionAwareArbitrator, blend, ema)
+from apac_mj.config import AgentConfig
+from apac_mj.evaluate import evaluate, load_run
+from apac_mj.trainer import train
+
+from test_trainer import tiny_config
+
+NEW_KINDS = ("apac_uncertainty", "apac_reliability", "apac_speed_accuracy", "apac_vision")
+
+
+def cfg(**kw) -> AgentConfig:
+    return AgentConfig(agent="apac", planning_episodes=0, **kw)
+
+
+def ctx(E=2, episode=5, step=3, last_delta=0.0, recent=None, vision=True, state=None, habit_action=None,
+        predict_end=None, zone_radius=0.5) -> ArbitrationContext:
+    last = torch.full((E,), float(last_delta)) if np.isscalar(last_delta) else torch.as_tensor(last_delta).float()
+    return ArbitrationContext(episode=torch.full((E,), episode), step=torch.full((E,), step), last_delta=last,
+                              recent_deltas=None if recent is None else torch.as_tensor(recent, dtype=torch.float32),
+                              vision=torch.full((E,), vision) if isinstance(vision, bool) else torch.as_tensor(vision),
+                              state=torch.zeros(E, 6) if state is None else state, habit_action=habit_action,
+                              predict_end=predict_end, zone_radius=zone_radius)
+
+
+def step(delta, end_error=None, before=None, after=None, habit=None, vision=None) -> SimpleNamespace:
+    """A StepInfo with what the running statistics read: the hand moves along x towards a target at 0."""
+    delta = np.asarray(delta, dtype=np.float32)
+    E = len(delta)
+    before = np.full(E, 10.0) if before is None else np.asarray(before, dtype=np.float32)
+    after = np.full(E, 5.0) if after is None else np.asarray(after, dtype=np.float32)
+    end_error = np.zeros(E) if end_error is None else np.asarray(end_error, dtype=np.float32)
+    state, nxt = np.zeros((E, 6), np.float32), np.zeros((E, 6), np.float32)
+    state[:, 0], nxt[:, 0] = before, after
+    predicted = np.zeros((E, 4), np.float32)
+    predicted[:, 0] = after + end_error
+    return SimpleNamespace(delta=delta, state=state, next_state=nxt, predicted_arm=predicted,
+                           vision=np.ones(E, bool) if vision is None else np.asarray(vision),
+                           habit=np.zeros(E, bool) if habit is None else np.asarray(habit))
+
+
+def test_ema_and_blend_by_hand():
+    old = torch.tensor([float("nan"), 2.0, 2.0])
+    new = torch.tensor([4.0, 4.0, float("nan")])
+    assert torch.equal(ema(old, new, 0.25, torch.ones(3, dtype=torch.bool)), torch.tensor([4.0, 2.5, 2.0]))
+    out = ema(old, new, 0.25, torch.tensor([False, True, True]))
+    assert math.isnan(out[0]) and out[1:].tolist() == [2.5, 2.0]
+    samples = torch.tensor([[float("nan"), 1.0, 3.0], [float("nan")] * 3, [5.0, 5.0, 5.0]])
+    got = blend(torch.tensor([2.0, 2.0, float("nan")]), samples, 4.0)
+    assert got.tolist() == pytest.approx([(4 * 2 + 4) / 6, 2.0, 5.0])
+    assert math.isnan(blend(torch.tensor([float("nan")]), torch.full((1, 2), float("nan")), 4.0)[0])
+
+
+def test_uncertainty_rule_prefers_the_less_uncertain_system():
+    arb = UncertaintyArbitrator(cfg(arbitration_window=2, arbitration_prior_weight=4.0))
+    c = ctx(recent=torch.full((2, 3), float("nan")))
+    assert not arb.use_habit(c).any(), "no statistics yet: the planner acts"
+    # member 0: the critic errs little, the forward model a lot; member 1 the reverse
+    arb.observe(step([0.1, 2.0], end_error=[1.0, 0.1]), np.ones(2, bool))
+    arb.observe(step([0.3, 2.0], end_error=[1.0, 0.1]), np.ones(2, bool))
+    assert arb.stats["habit_var"].tolist() == pytest.approx([0.01 + 0.5 * (0.09 - 0.01), 4.0])
+    assert arb.stats["planning_var"].tolist() == pytest.approx([1.0, 0.01], rel=1e-5)
+    assert arb.use_habit(c).tolist() == [True, False]
+    assert set(arb.last_inputs) == {"habit_uncertainty", "planning_uncertainty"}
+    # this episode's own large deltas outweigh a small prior once the prior has weight
+    arb.prior_weight = 1.0
+    assert arb.use_habit(ctx(recent=[[5.0, 5.0, 5.0], [float("nan")] * 3])).tolist() == [False, False]
+    # frozen (tests): observe without adapt leaves the statistics alone
+    before = arb.state_dict()
+    arb.observe(step([9.0, 9.0], end_error=[9.0, 9.0]), np.ones(2, bool), adapt=False)
+    assert all(torch.equal(before[k], arb.stats[k]) for k in before)
+
+
+def test_reliability_rule_moves_the_probability_of_planning_as_lee_et_al():
+    arb = ReliabilityArbitrator(cfg(arbitration_window=1, arbitration_prior_weight=1.0, reliability_rate=0.5,
+                                    reliability_slope=6.0))
+    c = ctx(E=1, recent=[[float("nan")] * 2])
+    assert arb.use_habit(c).tolist() == [False], "P(planning) starts at 1"
+    arb.observe(step([0.2], end_error=[2.0]), np.ones(1, bool))  # small RPE, large SPE
+    # chi's used for that step's transition were NaN (no statistics yet) -> 0: alpha = beta = A / 2
+    p = 1.0 + 0.25 * (1 - 1.0) - 0.25 * 1.0
+    assert arb.stats["p_planning"].item() == pytest.approx(p)
+    assert arb.stats["habit_reliability"].item() == 1.0 and arb.stats["planning_reliability"].item() == 0.0
+    for _ in range(3):
+        arb.use_habit(c)
+        arb.observe(step([0.2], end_error=[2.0]), np.ones(1, bool))
+        alpha, beta = 0.5 / (1 + math.exp(6.0 * 1.0)), 0.5 / (1 + math.exp(6.0 * 0.0))
+        p = p + alpha * (1 - p) - beta * p
+    assert arb.stats["p_planning"].item() == pytest.approx(p, rel=1e-6)
+    assert arb.use_habit(c).tolist() == [True], "a reliable habit and an unreliable model: the habit acts"
+    assert set(arb.last_inputs) == {"habit_reliability", "planning_reliability", "p_planning"}
+
+
+def test_speed_accuracy_threshold_follows_the_planning_cost():
+    arb = SpeedAccuracyArbitrator(cfg(arbitration_window=1))
+    # one planning step: 10 -> 4 cm estimated (time cost 3), the planner then misses the zone by 3.5 cm
+    arb.observe(step([0.0], before=[10.0], after=[4.0], habit=[False]), np.ones(1, bool))
+    rho = (10.0 - 4.0) / PLANNING_COST
+    assert arb.stats["progress_rate"].item() == pytest.approx(rho)
+    assert arb.stats["planning_miss"].item() == pytest.approx(3.5)
+    state = torch.tensor([[10.0, 0, 0, 0, 0, 0]])
+    threshold = (PLANNING_COST - HABIT_COST) * rho  # 4 cm
+    for habit_end, expected in ((0.3, True), (3.5 + 0.5 + threshold - 0.01, True), (3.5 + 0.5 + threshold + 0.01, False)):
+        c = ctx(E=1, state=state, habit_action=torch.zeros(1, 2),
+                predict_end=lambda a, x=habit_end: torch.tensor([[x, 0.0]]))
+        assert arb.use_habit(c).tolist() == [expected], habit_end
+    assert arb.last_inputs["threshold"].item() == pytest.approx(threshold)
+    # a habit step does not change the planner's miss, but its progress counts at cost 1
+    arb.observe(step([0.0], before=[4.0], after=[1.0], habit=[True]), np.ones(1, bool))
+    assert arb.stats["planning_miss"].item() == pytest.approx(3.5)
+    assert arb.stats["progress_rate"].item() == pytest.approx(3.0 / HABIT_COST)
+    with pytest.raises(ValueError, match="habit_action and predict_end"):
+        arb.use_habit(ctx(E=1))
+
+
+def test_planning_phase_holds_for_every_new_rule():
+    for name in NEW_KINDS:
+        arb = kinds.get(name).arbitrator(AgentConfig(agent=name, planning_episodes=100))
+        c = ctx(episode=99, last_delta=0.0, recent=torch.zeros(2, 3), state=torch.zeros(2, 6),
+                habit_action=torch.zeros(2, 2), predict_end=lambda a: torch.zeros(2, 2))
+        assert not arb.use_habit(c).any(), name
+
+
+def test_vision_aware_rule_suppresses_or_checks_the_habit_in_the_dark():
+    vision = torch.tensor([True, False])
+    arb = VisionAwareArbitrator(cfg())
+    assert arb.use_habit(ctx(last_delta=0.0, vision=vision)).tolist() == [True, False]
+    assert arb.last_inputs["vision"].tolist() == [1.0, 0.0] and "delta" in arb.last_inputs
+    check = VisionAwareArbitrator(cfg(vision_aware_dark="check", vision_check_ratio=0.5))
+    state = torch.tensor([[10.0, 0, 0, 0, 0, 0]] * 2)
+    for predicted, expected in ((4.9, [True, True]), (5.1, [True, False])):
+        c = ctx(last_delta=0.0, vision=vision, state=state, habit_action=torch.zeros(2, 2),
+                predict_end=lambda a, x=predicted: torch.tensor([[x, 0.0]] * 2))
+        assert check.use_habit(c).tolist() == expected
+    with pytest.raises(ValueError, match="itself vision-aware"):
+        VisionAwareArbitrator(cfg(vision_aware_base="apac_vision"))
+    with pytest.raises(ValueError, match="unknown agent kind"):
+        cfg(vision_aware_base="nope")
+
+
+def test_state_dict_is_validated():
+    arb = UncertaintyArbitrator(cfg())
+    with pytest.raises(ValueError, match="unknown statistics"):
+        arb.load_state_dict({"bogus": torch.zeros(2)})
+    with pytest.raises(ValueError, match="one length"):
+        arb.load_state_dict({"habit_var": torch.zeros(2), "planning_var": torch.zeros(3)})
+
+
+@pytest.mark.parametrize("agent", ["apac_reliability", "apac_speed_accuracy"])
+def test_statistics_are_checkpointed_and_frozen_in_the_tests(tmp_path, agent):
+    run = train(tiny_config((0, 1), episodes=4, agent=agent), tmp_path / "run", progress=False)
+    state = checkpoint.load(run / "checkpoints" / "latest.pt")["arbitrator"]
+    assert state and all(torch.isfinite(v).all() for k, v in state.items()), state
+    seen = []
+    evaluate(run, protocols=("grid",), limit=2, on_step=lambda info, env: seen.append(info.arbitration))
+    assert seen and all(set(s) for s in seen)
+    cfg_, _, ckpt = load_run(run)
+    arb = kinds.arbitrator_for(cfg_.agent, ckpt["arbitrator"])
+    assert all(torch.equal(arb.stats[k], state[k]) for k in state)
+    # the test ran with the statistics frozen: the checkpoint is unchanged by it
+    again = checkpoint.load(run / "checkpoints" / "latest.pt")["arbitrator"]
+    assert all(torch.equal(again[k], state[k]) for k in state)
+
+
+def test_resume_with_running_statistics_equals_uninterrupted(tmp_path):
+    cfg_ = tiny_config((0, 1), episodes=6, agent="apac_reliability")
+    full = train(cfg_, tmp_path / "full", progress=False)
+    first = tiny_config((0, 1), episodes=3, agent="apac_reliability")
+    train(first, tmp_path / "cut", progress=False)
+    resumed = train(cfg_, tmp_path / "cut", progress=False)  # extends the finished 3-episode run to 6
+    a, b = pd.read_parquet(full / "metrics.parquet"), pd.read_parquet(resumed / "metrics.parquet")
+    pd.testing.assert_frame_equal(a, b, check_exact=True)
+    sa = checkpoint.load(full / "checkpoints" / "latest.pt")["arbitrator"]
+    sb = checkpoint.load(resumed / "checkpoints" / "latest.pt")["arbitrator"]
+    assert all(torch.equal(sa[k], sb[k]) for k in sa)
+
+
+def test_a_kind_without_statistics_refuses_a_state():
+    with pytest.raises(ValueError, match="keeps no statistics"):
+        kinds.arbitrator_for(AgentConfig(agent="apac"), {"habit_var": torch.zeros(2)})
