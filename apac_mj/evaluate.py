@@ -5,16 +5,19 @@ networks (no noise, no updates) and runs, batched over all members at once:
 
 * ``grid``: the 100 angle-grid targets (:func:`apac_mj.kinematics.angle_grid`
   through the motion function at each member's end-of-training lengths);
-  static-target runs: the member's own target, 100 episodes. Perfect vision.
+  static-target runs: the member's own target, 100 episodes. The task's own
+  vision when it is the condition under test ("perfect", "noisy",
+  "intermittent"); a task trained "occluded" is tested with perfect vision
+  here (occlusion is the next protocol's test).
 * ``occluded`` (agent kinds that act in the dark, ``AgentKind.acts_occluded``: SPAC and
   APAC; not applicable to DDPG): the same targets with
-  the target and arm seen at step 0 only. The arm moves on the forward
-  model's chained estimate and stops when that estimate is inside the target
+  the target and arm seen at step 0 only (without noise, whatever the task's
+  vision). The arm moves on the forward model's chained estimate and stops when that estimate is inside the target
   zone (or after the episode's 30 steps); the real final distance is recorded.
   The environment's own reach test is disabled (zone radius ~0) so that its
   termination cannot tell the agent anything true.
 * ``generalization``: the grid targets inside the task's test region
-  (``y >= region.test_y_min``), perfect vision.
+  (``y >= region.test_y_min``), with the vision of ``grid``.
 
 Arbitration is the trained one after the planning phase (APAC: the actor on
 the first two steps, then ``|delta| < 1``). Lengths are frozen at their
@@ -164,12 +167,16 @@ def evaluation_targets(spec: TaskSpec, lengths: np.ndarray, own: list[Any], grid
     return out
 
 
+#: The vision parameters of a condition without noise or dropped frames (perfect, occluded).
+_CLEAN_VISION = {"vision_noise_std": 0.0, "vision_seen_probability": 1.0}
+
+
 def _eval_env(cfg: TrainConfig, spec: TaskSpec, lengths: np.ndarray, occluded: bool) -> VecEnv:
     overrides: dict[str, Any] = {**cfg.task_overrides, "growth_start_episode": 2**31 - 1}
     if occluded:
-        overrides.update(vision="occluded", zone_radius=_NO_REACH_RADIUS)
-    else:
-        overrides.update(vision="perfect")
+        overrides.update(vision="occluded", zone_radius=_NO_REACH_RADIUS, **_CLEAN_VISION)
+    elif spec.vision == "occluded":
+        overrides.update(vision="perfect", **_CLEAN_VISION)
     if spec.kinematics_mode == "static":
         overrides["kinematics_mode"] = "changing"  # keep the lengths set below across resets
     env = VecEnv(cfg.task, list(cfg.seeds), cfg.actuation, overrides=overrides)

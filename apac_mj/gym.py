@@ -11,7 +11,8 @@ Each environment wraps the task's dm_control environment (:func:`apac_mj.suite.l
 
 * observation: the agent's 6-D state ``[end_x, end_y, elbow_x, elbow_y, target_x, target_y]``
   in cm (float32; unbounded, as the links grow without limit under changing kinematics). Under occluded vision it is seen at the first step only and reads zero
-  afterwards, as in the suite; ``info["vision"]`` says which.
+  afterwards, as in the suite (intermittent vision: zero on the unseen steps; noisy vision: the
+  noisy positions); ``info["vision"]`` says which.
 * action: the change of the (shoulder, elbow) joint angles in degrees, in ``[-180, 180]``;
   the plant clamps angles at the joint limits.
 * reward: minus the distance to the target (cm).

@@ -8,8 +8,8 @@ mid-episode: MuJoCo's integration state (``mj_getState`` with
 ``mjSTATE_INTEGRATION``: positions, velocities, servo set-points, time,
 warm-start), the model fields changed at run time (link lengths, target,
 origin, zone radius), the task's state (episode, lengths, static target,
-RandomState) and step count, and ``control.Environment``'s own step counter
-and reset flag. All of it is plain numbers, lists and tensors, so a checkpoint
+RandomState, the current step's view: seen flag and observation noise) and
+step count, and ``control.Environment``'s own step counter and reset flag. All of it is plain numbers, lists and tensors, so a checkpoint
 holding it loads with ``torch.load(weights_only=True)``.
 """
 from __future__ import annotations
@@ -173,7 +173,8 @@ def _member_state(env) -> dict[str, Any]:
                             float(gauss)],
                  "target_override": None if task._target_override is None
                  else torch.from_numpy(task._target_override.copy()),
-                 "step_count": int(task.step_count)},
+                 "step_count": int(task.step_count), "seen": bool(ts["seen"]),
+                 "noise": None if ts["noise"] is None else torch.from_numpy(ts["noise"].copy())},
         "env_step_count": int(env._step_count), "reset_next_step": bool(env._reset_next_step),
     }
 
@@ -183,7 +184,9 @@ def _set_member_state(env, s: dict[str, Any]) -> None:
     kind, keys, pos, has_gauss, gauss = t["random"]
     task.set_state({"episode": t["episode"], "lengths": t["lengths"].numpy().astype(np.float64),
                     "static_target": None if t["static_target"] is None else t["static_target"].numpy(),
-                    "random": (kind, keys.numpy().astype(np.uint32), pos, has_gauss, gauss)})
+                    "random": (kind, keys.numpy().astype(np.uint32), pos, has_gauss, gauss),
+                    "seen": t.get("seen", True),
+                    "noise": None if t.get("noise") is None else t["noise"].numpy()})
     task.set_target_override(None if t["target_override"] is None else t["target_override"].numpy())
     task.step_count = int(t["step_count"])
     p.plane_size = task.spec.plane_size

@@ -52,5 +52,7 @@ def test_cli_help_explains(capsys):
 def test_tasks_regions(capsys):
     assert cli.main(["tasks", "--regions"]) == 0
     lines = capsys.readouterr().out.strip().splitlines()
-    assert len(lines) == 12
+    from apac_mj.suite.task_spec import task_names
+
+    assert [line.split()[0] for line in lines] == task_names() and len(lines) == 14
     assert all("31/100 grid targets" in line for line in lines)

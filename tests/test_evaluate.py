@@ -127,3 +127,22 @@ def test_bad_arguments(apac_run, tmp_path):
         evaluate(apac_run, protocols=("nope",))
     with pytest.raises(FileNotFoundError, match="not a run directory"):
         evaluate(tmp_path, protocols=("grid",))
+
+
+@pytest.mark.parametrize("task, overrides, grid_vision", [
+    ("changing_target", {}, ("perfect", 0.0, 1.0)),
+    ("changing_target_occluded", {}, ("perfect", 0.0, 1.0)),
+    ("changing_target_noisy", {}, ("noisy", 0.5, 1.0)),
+    ("changing_target_intermittent", {"vision_noise_std": 0.2}, ("intermittent", 0.2, 0.5)),
+])
+def test_protocol_environments_keep_the_vision_under_test(task, overrides, grid_vision):
+    """grid/generalization test the task's noisy or intermittent vision (occluded tasks: perfect); the
+    occluded protocol is clean occlusion whatever the task's vision."""
+    from apac_mj.config import task_spec
+    from apac_mj.evaluate import _eval_env
+
+    cfg = TrainConfig(task=task, seeds=(0,), task_overrides=overrides)
+    spec, lengths = task_spec(cfg), np.array([[5.0, 8.0]])
+    vision = lambda env: (env.spec.vision, env.spec.vision_noise_std, env.spec.vision_seen_probability)
+    assert vision(_eval_env(cfg, spec, lengths, occluded=False)) == grid_vision
+    assert vision(_eval_env(cfg, spec, lengths, occluded=True)) == ("occluded", 0.0, 1.0)

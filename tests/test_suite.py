@@ -59,6 +59,8 @@ def test_task_files_state_only_what_differs_from_the_defaults(task):
     assert (spec.target_mode == "static") == task.startswith("static_target")
     assert (spec.kinematics_mode == "changing") == ("changing_kinematics" in task)
     assert spec.occluded == task.endswith("_occluded")
+    assert (spec.vision == "noisy") == task.endswith("_noisy")
+    assert (spec.vision == "intermittent") == task.endswith("_intermittent")
     assert (spec.target_region == "train") == task.endswith("_train_region")
 
 
@@ -162,6 +164,157 @@ def test_occluded_vision_withholds_positions_after_first_step(task):
             assert not np.any(np.isclose(ts.observation[name], value)), name
         if ts.last():
             break
+
+
+# -- noisy and intermittent vision ------------------------------------------------------
+def _truth(env) -> dict[str, np.ndarray]:
+    p = env.physics
+    return {"end_effector": p.end_effector(), "elbow": p.elbow(), "target": p.target()}
+
+
+def _play(env, n: int, seed: int = 3):
+    """``n`` observations (the reset ones included) with the truth beside each: [(obs, truth, first)]."""
+    actions = np.random.default_rng(seed).uniform(-40.0, 40.0, size=(n, 2))
+    ts, out = env.reset(), []
+    for a in actions:
+        out.append((ts.observation, _truth(env), ts.first()))
+        ts = env.reset() if ts.last() else env.step(a)
+    return out
+
+
+def test_noisy_vision_adds_independent_gaussian_noise_of_the_tasks_std():
+    """Observed minus true positions over 2000 observations (12000 coordinates): mean ~0, std = 0.5 within
+    10%, coordinates uncorrelated; the reset observations are noisy too; vision always reads 1."""
+    env = make("changing_target_noisy", actuation="kinematic")
+    std = env.task.spec.observation_noise_std
+    assert std == 0.5
+    trace = _play(env, 2000)
+    errors = np.array([np.concatenate([o[k] - t[k] for k in t]) for o, t, _ in trace])  # [2000, 6]
+    assert all(o["vision"][0] == 1.0 for o, _, _ in trace)
+    assert abs(errors.mean()) < 0.03 and np.all(np.abs(errors.mean(axis=0)) < 0.06)
+    assert abs(errors.std() / std - 1.0) < 0.1 and np.all(np.abs(errors.std(axis=0) / std - 1.0) < 0.1)
+    corr = np.corrcoef(errors.T) - np.eye(6)
+    assert np.max(np.abs(corr)) < 0.1
+    first = np.array([e for e, (_, _, f) in zip(errors, trace) if f])
+    assert len(first) > 30 and abs(first.std() / std - 1.0) < 0.25
+
+
+def test_noisy_observation_is_drawn_once_per_step():
+    """Reading the observation again within a step gives the same numbers (no redraw)."""
+    env = make("changing_target_noisy")
+    for i in range(4):
+        obs = env.reset().observation if i == 0 else env.step(np.array([10.0, -5.0])).observation
+        again = env.task.get_observation(env.physics)
+        for k in ("end_effector", "elbow", "target"):
+            np.testing.assert_array_equal(again[k], obs[k])
+            assert not np.array_equal(obs[k], _truth(env)[k])
+
+
+def test_noisy_vision_depends_on_the_seed():
+    a, b = (make("changing_target_noisy", seed=s).reset().observation["end_effector"] for s in (0, 1))
+    assert not np.array_equal(a, b)
+
+
+def test_noisy_vision_keeps_the_true_reward_and_termination():
+    env = make("changing_target_noisy", vision_noise_std=3.0)
+    target, _ = motion_function(90.0, 90.0, 5.0, 8.0)
+    env.task.set_target_override(target)
+    env.reset()
+    for action in np.random.default_rng(2).uniform(-30.0, 30.0, size=(5, 2)):
+        ts = env.step(action)
+        assert ts.reward == pytest.approx(-np.linalg.norm(env.physics.end_effector() - env.physics.target()))
+        assert abs(ts.reward) > 0.5 and not ts.last()
+    env.reset()
+    ts = env.step(np.array([90.0, -90.0]))  # (0, 180) -> (90, 90): on the target whatever is observed
+    assert ts.last() and ts.discount == 0.0 and -ts.reward <= 0.5
+    assert np.linalg.norm(ts.observation["end_effector"] - target) > 0.5  # the std-3 noise moved it off
+
+
+def test_intermittent_vision_sees_step_zero_then_with_the_tasks_probability():
+    """Every reset observation is seen; later steps are seen at rate p (3000 steps: within 0.04 of 0.5);
+    a seen step reads the exact truth (no noise), an unseen one zeros and vision 0."""
+    env = make("changing_target_intermittent", actuation="kinematic")
+    p = env.task.spec.vision_seen_probability
+    assert p == 0.5
+    trace = _play(env, 3000)
+    firsts = [o for o, _, f in trace if f]
+    later = [(o, t) for o, t, f in trace if not f]
+    assert len(firsts) >= 100 and all(o["vision"][0] == 1.0 for o in firsts)
+    seen = np.array([o["vision"][0] == 1.0 for o, _ in later])
+    assert abs(seen.mean() - p) < 0.04
+    for o, t in later:
+        for k in t:
+            np.testing.assert_array_equal(o[k], t[k] if o["vision"][0] == 1.0 else np.zeros(2))
+    runs = np.flatnonzero(np.diff(seen.astype(int)))  # both seen and unseen stretches, not a fixed pattern
+    assert len(runs) > 500
+
+
+def test_intermittent_vision_with_noise_is_noisy_when_seen_and_zero_when_not():
+    env = make("changing_target_intermittent", vision_noise_std=0.5, actuation="kinematic")
+    trace = _play(env, 400)
+    seen = [(o, t) for o, t, _ in trace if o["vision"][0] == 1.0]
+    unseen = [o for o, _, _ in trace if o["vision"][0] == 0.0]
+    errors = np.array([np.concatenate([o[k] - t[k] for k in t]) for o, t in seen])
+    assert len(unseen) > 100 and all(not np.any(np.concatenate([o[k] for k in _truth(env)])) for o in unseen)
+    assert abs(errors.std() / 0.5 - 1.0) < 0.15
+
+
+@pytest.mark.parametrize("task", ["changing_target", "changing_target_occluded", "static_target"])
+def test_perfect_and_occluded_vision_draw_nothing_per_step(task):
+    """Only the target draw uses the task's RandomState: stepping, and resetting onto a fixed target,
+    leave it untouched (so these conditions' target sequences are those of the code before noisy vision)."""
+    env = make(task)
+    env.reset()
+
+    def random_state():
+        kind, keys, pos, has_gauss, gauss = env.task.random.get_state()
+        return kind, keys.copy(), pos, has_gauss, gauss
+
+    before = random_state()
+    for action in np.random.default_rng(0).uniform(-30.0, 30.0, size=(10, 2)):
+        if env.step(action).last():
+            break
+    env.task.set_target_override((20.0, 21.0))
+    env.reset()
+    after = random_state()
+    assert before[0] == after[0] and before[2:] == after[2:]
+    np.testing.assert_array_equal(before[1], after[1])
+
+
+def test_noisy_vision_draws_every_step():
+    """The counterpart of the test above: it would fail if the draw check could not see draws."""
+    env = make("changing_target_noisy")
+    env.reset()
+    pos = env.task.random.get_state()[2]
+    env.step(np.zeros(2))
+    assert env.task.random.get_state()[2] != pos
+
+
+@pytest.mark.parametrize("task", ["changing_target_noisy", "changing_target_intermittent"])
+def test_resume_mid_episode_reproduces_the_corrupted_observations(task):
+    """Reach.get_state/set_state (with the physics state) mid-episode: the same observation now and
+    the same noisy / dropped observations afterwards, as an uninterrupted environment."""
+    actions = np.random.default_rng(4).uniform(-30.0, 30.0, size=(12, 2))
+    env = make(task, seed=5, vision_noise_std=0.5, actuation="kinematic")
+    env.task.set_target_override((20.0, 21.0))  # no episode ends early
+    env.reset()
+    for a in actions[:4]:
+        env.step(a)
+    task_state, physics_state = env.task.get_state(), env.physics.get_state().copy()
+    steps, at_checkpoint = env.task.step_count, env.task.get_observation(env.physics)
+    expected = [np.concatenate(list(env.step(a).observation.values())) for a in actions[4:]]
+    other = make(task, seed=11, vision_noise_std=0.5, actuation="kinematic")
+    other.task.set_target_override((20.0, 21.0))
+    other.reset()
+    other.task.set_state(task_state)
+    other.task.step_count = steps
+    other.physics.set_state(physics_state)
+    other.physics.forward()
+    restored = other.task.get_observation(other.physics)
+    for k, v in at_checkpoint.items():
+        np.testing.assert_array_equal(restored[k], v)
+    got = [np.concatenate(list(other.step(a).observation.values())) for a in actions[4:]]
+    np.testing.assert_array_equal(np.array(got), np.array(expected))
 
 
 def test_reward_is_minus_distance():

@@ -51,7 +51,7 @@ def test_missing_keys_take_paper_defaults(tmp_path):
 
 def test_shipped_task_files():
     names = task_names()
-    assert len(names) == 12
+    assert len(names) == 14
     for name in names:
         spec = load_task(name)
         assert spec.link_lengths == (5.0, 8.0) and spec.steps_per_episode == 30 and spec.zone_radius == 0.5
@@ -60,6 +60,22 @@ def test_shipped_task_files():
         assert spec.occluded == name.endswith("occluded")
         assert (spec.target_region == "train") == name.endswith("train_region")
     assert paths.arm_xml_path().is_file()
+    noisy, intermittent = load_task("changing_target_noisy"), load_task("changing_target_intermittent")
+    assert (noisy.vision, noisy.vision_noise_std, noisy.vision_seen_probability) == ("noisy", 0.5, 1.0)
+    assert noisy.observation_noise_std == noisy.zone_radius
+    assert (intermittent.vision, intermittent.vision_seen_probability) == ("intermittent", 0.5)
+    assert intermittent.observation_noise_std == 0.0 and load_task("changing_target").observation_noise_std == 0.0
+
+
+@pytest.mark.parametrize("text, std, p", [
+    ("[vision]\nmode = 'noisy'\nnoise_std = 0.25", 0.25, 1.0),
+    ("[vision]\nmode = 'intermittent'\nseen_probability = 0.3", 0.0, 0.3),
+    ("[vision]\nmode = 'intermittent'\nseen_probability = 0.9\nnoise_std = 1", 1.0, 0.9),
+])
+def test_vision_keys_are_read(tmp_path, text, std, p):
+    spec = load_task_file(write(tmp_path, text))
+    assert (spec.vision_noise_std, spec.vision_seen_probability, spec.observation_noise_std) == (std, p, std)
+    assert isinstance(spec.vision_noise_std, float)
 
 
 @pytest.mark.parametrize("text, problem", [
@@ -77,6 +93,20 @@ def test_shipped_task_files():
     ("[kinematics]\ngrowth_start_episode = 1.5", "kinematics.growth_start_episode must be an integer"),
     ("[kinematics]\ngrowth_start_episode = -2", "growth_start_episode must be >= 0"),
     ("[vision]\nmode = 'blurry'", "vision must be one of"),
+    ("[vision]\nmode = 'noisy'", r"vision 'noisy' needs vision_noise_std \(\[vision\] noise_std\) > 0"),
+    ("[vision]\nmode = 'noisy'\nnoise_std = -0.5", r"\[vision\] noise_std\) must be a finite number >= 0"),
+    ("[vision]\nmode = 'noisy'\nnoise_std = 'lots'", "vision.noise_std must be a finite number"),
+    ("[vision]\nmode = 'noisy'\nnoise_std = inf", "vision.noise_std must be a finite number"),
+    ("[vision]\nmode = 'noisy'\nnoise_std = 0.5\nseen_probability = 0.5",
+     r"\[vision\] seen_probability\) must be 1 under vision 'noisy'"),
+    ("[vision]\nnoise_std = 0.5", r"\[vision\] noise_std\) must be 0 under vision 'perfect'"),
+    ("[vision]\nmode = 'occluded'\nnoise_std = 0.5", r"noise_std\) must be 0 under vision 'occluded'"),
+    ("[vision]\nseen_probability = 0.5", r"seen_probability\) must be 1 under vision 'perfect'"),
+    ("[vision]\nmode = 'intermittent'", r"vision 'intermittent' needs .*seen_probability\) strictly between"),
+    ("[vision]\nmode = 'intermittent'\nseen_probability = 0", r"seen_probability\) must be a number in \(0, 1\]"),
+    ("[vision]\nmode = 'intermittent'\nseen_probability = 1.5", r"seen_probability\) must be a number in \(0, 1\]"),
+    ("[vision]\nmode = 'intermittent'\nseen_probability = -0.1", r"must be a number in \(0, 1\]"),
+    ("[vision]\nmode = 'intermittent'\nseen_probability = true", "vision.seen_probability must be a finite number"),
     ("[episode]\nsteps = 0", "steps_per_episode must be >= 1"),
     ("[episode]\nsteps = true", "episode.steps must be an integer"),
     ("[plane]\norigin = [50.0, 15.0]", "origin .* lies outside the plane"),
@@ -105,6 +135,11 @@ def test_replace_checks_overrides():
         spec.replace(colour="red")
     with pytest.raises(TaskSpecError, match="vision must be one of"):
         spec.replace(vision="x-ray")
+    with pytest.raises(TaskSpecError, match="vision 'noisy' needs vision_noise_std"):
+        spec.replace(vision="noisy")
+    with pytest.raises(TaskSpecError, match=r"vision_noise_std \(\[vision\] noise_std\) must be a finite"):
+        spec.replace(vision="noisy", vision_noise_std=float("nan"))
+    assert spec.replace(vision="noisy", vision_noise_std=2).observation_noise_std == 2
 
 
 def test_tasks_command_lists_every_task_and_shows_one(capsys):

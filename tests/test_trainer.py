@@ -178,7 +178,8 @@ def test_checkpoint_with_code_is_refused(tmp_path, capsys):
     assert "code ran" not in capsys.readouterr().out
 
 
-@pytest.mark.parametrize("task,actuation", [("changing_target", "servo"),
+@pytest.mark.parametrize("task,actuation", [("changing_target", "servo"), ("changing_target_noisy", "kinematic"),
+                                            ("changing_target_intermittent", "kinematic"),
                                             ("static_target_changing_kinematics", "kinematic")])
 def test_vec_env_state_roundtrip_mid_episode(task, actuation):
     import io

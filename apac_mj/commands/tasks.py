@@ -26,7 +26,7 @@ def run(args: argparse.Namespace) -> int:
     for name in task_names():
         s = load_task(name)
         line = (f"{name:48s} target={s.target_mode:8s} kinematics={s.kinematics_mode:8s} "
-                f"vision={s.vision:8s} region={s.target_region}")
+                f"vision={s.vision:12s} region={s.target_region}")
         if args.regions:
             r = region_stats(s)
             line += (f"  test y>={r.test_y_min}: {r.test_area_fraction:.3f} of area, "

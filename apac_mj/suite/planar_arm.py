@@ -209,7 +209,18 @@ class Reach(base.Task):
     ``end_effector`` (2), ``elbow`` (2), ``target`` (2) in cm and ``vision``
     (1: seen, 0: withheld). Under occluded vision everything is seen at the
     first step only; afterwards the positions read zero and ``vision`` is 0,
-    so nothing of the true state leaks.
+    so nothing of the true state leaks. Under noisy vision every observation
+    (the reset one included) adds independent N(0, ``vision_noise_std``^2)
+    noise to each position coordinate; under intermittent vision the first
+    step is seen and each later one with probability
+    ``vision_seen_probability``, an unseen step reading like an occluded one
+    (plus the noise, if any, on the seen ones). The draws come from the task's
+    own ``random`` (seeded, checkpointed by :meth:`get_state`), once per step
+    (:meth:`initialize_episode`, :meth:`after_step`), so repeated
+    :meth:`get_observation` calls within a step agree; perfect and occluded
+    vision draw nothing. Only the observations are corrupted: reward
+    (minus the true distance) and termination (the true hand inside the zone)
+    stay the environment's true ones.
     """
 
     def __init__(self, spec: TaskSpec, actuation: str = "servo", random=None) -> None:
@@ -225,6 +236,9 @@ class Reach(base.Task):
         self._lengths = np.array(spec.link_lengths, dtype=np.float64)
         self._static_target: np.ndarray | None = None
         self._target_override: np.ndarray | None = None
+        #: This step's view: seen or not, and the noise on the 6 seen coordinates (None: none).
+        self._seen = True
+        self._noise: np.ndarray | None = None
 
     # -- run-time controls ----------------------------------------------------
     def set_target_override(self, xy) -> None:
@@ -261,6 +275,19 @@ class Reach(base.Task):
         physics.set_joint_angles(*START_ANGLES)
         physics.set_target(self._episode_target())
         physics.forward()
+        self._draw_view(first=True)
+
+    def _draw_view(self, first: bool) -> None:
+        """Draw this step's view (seen flag, noise) once; :meth:`get_observation` reads it."""
+        spec = self.spec
+        if spec.vision == "occluded":
+            self._seen = first
+        elif spec.vision == "intermittent":
+            self._seen = first or bool(self.random.uniform() < spec.vision_seen_probability)
+        else:
+            self._seen = True
+        std = spec.observation_noise_std
+        self._noise = self.random.normal(0.0, std, size=6) if self._seen and std > 0 else None
 
     def _episode_target(self) -> np.ndarray:
         if self._target_override is not None:
@@ -311,13 +338,17 @@ class Reach(base.Task):
 
     def after_step(self, physics: Physics) -> None:
         self.step_count += 1
+        self._draw_view(first=False)
 
     def get_observation(self, physics: Physics) -> collections.OrderedDict:
-        seen = not (self.spec.occluded and self.step_count > 0)
+        seen, noise = self._seen, self._noise
         obs = collections.OrderedDict()
         obs["end_effector"] = physics.end_effector() if seen else np.zeros(2)
         obs["elbow"] = physics.elbow() if seen else np.zeros(2)
         obs["target"] = physics.target() if seen else np.zeros(2)
+        if noise is not None:
+            for i, name in enumerate(("end_effector", "elbow", "target")):
+                obs[name] += noise[2 * i:2 * i + 2]
         obs["vision"] = np.array([1.0 if seen else 0.0])
         return obs
 
@@ -333,20 +364,26 @@ class Reach(base.Task):
 
     # -- checkpointing -----------------------------------------------------------
     def get_state(self) -> dict:
-        """Everything that evolves across episodes (for exact resume)."""
+        """Everything that evolves across episodes (for exact resume), and this step's view."""
         return {
             "episode": self.episode,
             "lengths": self._lengths.copy(),
             "static_target": None if self._static_target is None else self._static_target.copy(),
             "random": self.random.get_state(),
+            "seen": self._seen,
+            "noise": None if self._noise is None else self._noise.copy(),
         }
 
     def set_state(self, state: dict) -> None:
+        """Restore :meth:`get_state`'s dict; ``seen``/``noise`` are optional (default: seen, no noise)."""
         self.episode = int(state["episode"])
         self._lengths = np.asarray(state["lengths"], dtype=np.float64).copy()
         st = state["static_target"]
         self._static_target = None if st is None else np.asarray(st, dtype=np.float64).copy()
         self.random.set_state(state["random"])
+        self._seen = bool(state.get("seen", True))
+        noise = state.get("noise")
+        self._noise = None if noise is None else np.asarray(noise, dtype=np.float64).reshape(6).copy()
 
 
 def validate_action(action) -> np.ndarray:

@@ -1,8 +1,8 @@
 """Task conditions as data: TOML files in ``tasks/``, read and validated here.
 
 A task file states one condition of the paper's experiments (target
-static/changing, kinematics static/changing, vision perfect/occluded, the
-generalization region) as what differs from the defaults: the field defaults
+static/changing, kinematics static/changing, vision perfect/occluded/noisy/
+intermittent, the generalization region) as what differs from the defaults: the field defaults
 of :class:`TaskSpec`, the paper's values (its "Experimental Conditions and
 Environment" and Appendix 2 Table 1), documented below. ``apac-mj tasks --show
 NAME`` prints every value of a task. Every key is checked: an unknown key or a
@@ -69,8 +69,18 @@ class TaskSpec:
     growth_per_step: float = 0.001
     #: Growth starts after this many episodes (the paper: after the 100th).
     growth_start_episode: int = 100
-    #: "perfect" or "occluded" (target and arm seen at the first step only).
+    #: "perfect", "occluded" (target and arm seen at the first step only), "noisy" (every observed
+    #: coordinate carries Gaussian noise of std ``vision_noise_std``) or "intermittent" (seen at the first
+    #: step, then each step with probability ``vision_seen_probability``; an unseen step reads like occluded).
+    #: Only the observations are corrupted: reward and termination stay the true ones.
     vision: str = "perfect"
+    #: File key ``[vision] noise_std``: std (cm, finite, >= 0) of the independent Gaussian noise on each
+    #: observed coordinate of end_effector, elbow and target. > 0 for "noisy", optional (>= 0) for
+    #: "intermittent" (noisy and intermittent together), 0 for the other modes.
+    vision_noise_std: float = 0.0
+    #: File key ``[vision] seen_probability``: probability (in (0, 1]) that a step after the first is seen.
+    #: Strictly between 0 and 1 for "intermittent", 1 for the other modes.
+    vision_seen_probability: float = 1.0
     #: (low, high) of both joints in degrees (the paper: "each joint only moves between 0 to 180 degrees");
     #: it must hold the start pose ``START_ANGLES`` (0, 180).
     joint_range: tuple[float, float] = (0.0, 180.0)
@@ -91,7 +101,8 @@ class TaskSpec:
         _check_choice(self, "target_mode", ("static", "changing"))
         _check_choice(self, "target_region", ("all", "train", "test"))
         _check_choice(self, "kinematics_mode", ("static", "changing"))
-        _check_choice(self, "vision", ("perfect", "occluded"))
+        _check_choice(self, "vision", VISION_MODES)
+        _check_vision(self)
         _check_choice(self, "at_limit", ("clip", "unbounded"))
         _check_positive(self, "zone_radius", self.zone_radius)
         for k, v in zip(("l1", "l2"), self.link_lengths):
@@ -117,6 +128,11 @@ class TaskSpec:
     def occluded(self) -> bool:
         return self.vision == "occluded"
 
+    @property
+    def observation_noise_std(self) -> float:
+        """Std (cm) of the noise every seen observed coordinate carries (0: none)."""
+        return self.vision_noise_std
+
     def replace(self, **overrides: Any) -> "TaskSpec":
         unknown = set(overrides) - {f.name for f in dataclasses.fields(self)}
         if unknown:
@@ -137,6 +153,31 @@ def _check_choice(spec: TaskSpec, field: str, choices: tuple[str, ...]) -> None:
         raise TaskSpecError(f"task {spec.name!r}: {field} must be one of {choices}, got {value!r}")
 
 
+#: The vision conditions (``TaskSpec.vision``).
+VISION_MODES = ("perfect", "occluded", "noisy", "intermittent")
+_NOISE_KEY = "vision_noise_std ([vision] noise_std)"
+_SEEN_KEY = "vision_seen_probability ([vision] seen_probability)"
+
+
+def _check_vision(spec: TaskSpec) -> None:
+    """The two vision parameters are well-formed and fit ``spec.vision``."""
+    std, p, mode = spec.vision_noise_std, spec.vision_seen_probability, spec.vision
+    where = f"task {spec.name!r}"
+    if isinstance(std, bool) or not isinstance(std, (int, float)) or not math.isfinite(std) or std < 0:
+        raise TaskSpecError(f"{where}: {_NOISE_KEY} must be a finite number >= 0 (cm), got {std!r}")
+    if isinstance(p, bool) or not isinstance(p, (int, float)) or not math.isfinite(p) or not 0 < p <= 1:
+        raise TaskSpecError(f"{where}: {_SEEN_KEY} must be a number in (0, 1], got {p!r}")
+    if mode == "noisy" and std == 0:
+        raise TaskSpecError(f"{where}: vision 'noisy' needs {_NOISE_KEY} > 0")
+    if mode == "intermittent" and p == 1:
+        raise TaskSpecError(f"{where}: vision 'intermittent' needs {_SEEN_KEY} strictly between 0 and 1")
+    if mode in ("perfect", "occluded") and std != 0:
+        raise TaskSpecError(f"{where}: {_NOISE_KEY} must be 0 under vision {mode!r} (use 'noisy'), got {std!r}")
+    if mode != "intermittent" and p != 1:
+        raise TaskSpecError(f"{where}: {_SEEN_KEY} must be 1 under vision {mode!r} (use 'intermittent'), "
+                            f"got {p!r}")
+
+
 def _check_positive(spec: TaskSpec, field: str, value: float) -> None:
     if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
         raise TaskSpecError(f"task {spec.name!r}: {field} must be a positive finite number, got {value!r}")
@@ -152,14 +193,14 @@ _LAYOUT: dict[str, dict[str, str]] = {
         "growth_per_step": "growth_per_step",
         "growth_start_episode": "growth_start_episode",
     },
-    "vision": {"mode": "vision"},
+    "vision": {"mode": "vision", "noise_std": "vision_noise_std", "seen_probability": "vision_seen_probability"},
     "joints": {"range": "joint_range", "at_limit": "at_limit"},
     "episode": {"steps": "steps_per_episode"},
     "plane": {"size": "plane_size", "origin": "origin"},
     "region": {"test_y_min": "region"},
 }
 _PAIRS = {"link_lengths", "plane_size", "origin", "joint_range"}
-_FLOATS = {"zone_radius", "growth_per_step"}
+_FLOATS = {"zone_radius", "growth_per_step", "vision_noise_std", "vision_seen_probability"}
 _INTS = {"growth_start_episode", "steps_per_episode"}
 
 
