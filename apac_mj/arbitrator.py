@@ -28,9 +28,9 @@ equations and sources), each after the same planning phase:
   from the reward and state prediction errors drive a two-state transition
   of the probability of planning control;
 * :class:`SpeedAccuracyArbitrator` (Keramati, Dezfouli & Piray 2011; the
-  paper's "threshold modulated by the task"): plan only where the gain in
-  distance the forward model expects from planning exceeds what the planning
-  step's extra time (3 habit steps, :data:`PLANNING_COST`) is worth;
+  paper's "threshold modulated by the task"): plan only where the time that
+  planning saves later (learned, per distance to the target) exceeds its
+  extra cost (3 habit steps, :data:`PLANNING_COST`, against 1);
 * :class:`VisionAwareArbitrator`: another kind's rule with vision; without
   vision the habit is suppressed, or checked against the forward model.
 
@@ -188,7 +188,8 @@ def step_signals(info: Any) -> dict[str, torch.Tensor]:
             "end_error": torch.where(vision, end_error, float("nan")).float(),
             "before": torch.linalg.vector_norm(state[:, :2] - state[:, 4:], dim=1).float(),
             "after": torch.linalg.vector_norm(nxt[:, :2] - nxt[:, 4:], dim=1).float(),
-            "cost": torch.where(habit, float(HABIT_COST), float(PLANNING_COST)), "habit": habit}
+            "cost": torch.where(habit, float(HABIT_COST), float(PLANNING_COST)), "habit": habit,
+            "done": torch.as_tensor(info.done), "terminal": torch.as_tensor(info.terminal)}
 
 
 class RunningArbitrator:
@@ -310,43 +311,81 @@ class ReliabilityArbitrator(RunningArbitrator):
         return (p < 0.5) & ~self.planning_phase(ctx)
 
 
-class SpeedAccuracyArbitrator(RunningArbitrator):
-    """Plan only where planning's expected gain in distance is worth its extra time (Keramati et al. 2011).
+#: Bin edges (cm) of the estimated distance to the target in the speed-accuracy rule's time-cost table.
+DISTANCE_EDGES = (0.5, 1.0, 2.0, 4.0, 8.0)
+#: In training, the entry of the controller not chosen moves towards that controller's own cost (its
+#: optimistic value) at this fraction of the learning rate: a controller abandoned in a bin is tried again.
+UNTRIED_DRIFT = 0.1
 
-    The forward model predicts where the habit's proposal puts the hand: its expected miss
-    ``m_h = max(|f(s, pi(s)) - target| - r, 0)`` (cm outside the zone). The planner's expected miss ``m_p``
-    is the running mean of the misses measured after planning actions (the inverse model is not run to
-    decide). Planning costs ``PLANNING_COST - HABIT_COST`` (2) time units more than a habit, each worth
-    the agent's progress per time unit ``rho`` (running mean of the estimated distance gained per unit).
-    Habit iff ``m_h - m_p <= 2 rho``: the threshold follows from the cost and the task, not fixed at 1.
+
+class SpeedAccuracyArbitrator(RunningArbitrator):
+    """Plan only where the time planning saves later is worth its extra cost (Keramati et al. 2011).
+
+    The rule learns, per member, the time cost to the episode's end ``T(b, c)`` (this step's cost
+    included) after choosing controller ``c`` (habit, planning) at estimated distance ``b`` to the target
+    (bins :data:`DISTANCE_EDGES`, cm), by SARSA(0) on the time cost: ``T(b, c) <- T(b, c) + rate
+    (cost + T(b', c') - T(b, c))``, with ``T = 0`` after a perceived reach and :data:`PLANNING_COST`
+    more after a time limit (the episode was not finished). With ``T = cost + R`` (``R``: what remains
+    after the step), planning's expected gain is the time it saves later, ``R_h - R_p``; planning is worth
+    it only where that gain exceeds its extra cost ``PLANNING_COST - HABIT_COST`` (2 habit steps). So
+    the threshold follows from the cost and from what the task and the controllers make of it, not a
+    fixed 1. An entry never tried is optimistic (the action's own cost), so each controller is tried;
+    in training the entry of the controller not chosen drifts back towards that value
+    (:data:`UNTRIED_DRIFT`), so a controller abandoned in a bin is tried again as the other one improves.
     """
 
-    STATS = {"progress_rate": float("nan"), "planning_miss": float("nan")}
+    DISTANCE_EDGES = DISTANCE_EDGES
+    CONTROLLERS = ("habit", "planning")
+    STATS = {**{f"time_{c}_{b}": float("nan") for c in ("habit", "planning") for b in range(len(DISTANCE_EDGES) + 1)},
+             "pending_bin": float("nan"), "pending_habit": float("nan"), "pending_cost": float("nan")}
 
-    def __init__(self, cfg: AgentConfig) -> None:
-        super().__init__(cfg)
-        self.zone_radius = 0.5  # the task's, read from the context at every decision
+    def bins(self, distance: torch.Tensor) -> torch.Tensor:
+        return torch.bucketize(distance.float(), torch.tensor(self.DISTANCE_EDGES))
+
+    def table(self, E: int) -> torch.Tensor:
+        """``[E, bins, 2]`` the learned time cost (NaN: never tried)."""
+        return torch.stack([torch.stack([self.stat(f"time_{c}_{b}", E) for c in self.CONTROLLERS], dim=1)
+                            for b in range(len(self.DISTANCE_EDGES) + 1)], dim=1)
+
+    def _set_table(self, table: torch.Tensor) -> None:
+        for b in range(table.shape[1]):
+            for i, c in enumerate(self.CONTROLLERS):
+                self.stats[f"time_{c}_{b}"] = table[:, b, i].clone()
 
     def learn(self, sig: dict[str, torch.Tensor], mask: torch.Tensor) -> None:
         E = len(mask)
-        rate = (sig["before"] - sig["after"]) / sig["cost"]
-        self.stats["progress_rate"] = ema(self.stat("progress_rate", E), rate, self.rate, mask)
-        miss = (sig["after"] - self.zone_radius).clamp(min=0.0)
-        self.stats["planning_miss"] = ema(self.stat("planning_miss", E), miss, self.rate, mask & ~sig["habit"])
+        table = self.table(E)
+        rows = torch.arange(E)
+        b, c = self.bins(sig["before"]), (~sig["habit"]).long()  # column 0 habit, 1 planning
+        # the previous step's entry learns from this step's: cost_prev + T(b, c)
+        pb, pc, pcost = (self.stat(k, E) for k in ("pending_bin", "pending_habit", "pending_cost"))
+        has_prev = mask & torch.isfinite(pb)
+        here = torch.where(torch.isnan(table[rows, b, c]), sig["cost"], table[rows, b, c])  # optimistic: own cost
+        pbi, pci = torch.nan_to_num(pb).long(), torch.nan_to_num(pc).long()
+        table[rows, pbi, pci] = ema(table[rows, pbi, pci], pcost + here, self.rate, has_prev)
+        # this step's entry: finished now (perceived reach: nothing remains; time limit: a planning step more)
+        end = torch.where(sig["terminal"], 0.0, float(PLANNING_COST))
+        done = mask & sig["done"]
+        table[rows, b, c] = ema(table[rows, b, c], sig["cost"] + end, self.rate, done)
+        # the controller not chosen drifts back towards its own cost (optimism), so it is tried again
+        other, own = 1 - c, torch.where(c == 1, float(HABIT_COST), float(PLANNING_COST))
+        table[rows, b, other] = ema(table[rows, b, other], own, self.rate * UNTRIED_DRIFT, mask)
+        self._set_table(table)
+        going = mask & ~sig["done"]
+        nan = torch.full((E,), float("nan"))
+        for key, value in (("pending_bin", b.float()), ("pending_habit", c.float()), ("pending_cost", sig["cost"])):
+            self.stats[key] = torch.where(going, value, torch.where(mask, nan, self.stat(key, E)))
 
     def use_habit(self, ctx: ArbitrationContext) -> torch.Tensor:
-        if ctx.habit_action is None or ctx.predict_end is None:
-            raise ValueError("SpeedAccuracyArbitrator needs the context's habit_action and predict_end")
-        self.zone_radius = ctx.zone_radius
-        target = ctx.state[:, 4:6]
-        habit_end = ctx.predict_end(ctx.habit_action)
-        habit_miss = (torch.linalg.vector_norm(habit_end - target, dim=1) - ctx.zone_radius).clamp(min=0.0).cpu()
-        plan_miss = torch.nan_to_num(self.stat("planning_miss", ctx.E), nan=0.0)
-        threshold = (PLANNING_COST - HABIT_COST) * self.stat("progress_rate", ctx.E)
-        gain = habit_miss - plan_miss
-        self.last_inputs = {"habit_miss": habit_miss, "planning_miss": plan_miss, "gain": gain,
-                            "threshold": threshold.clone()}
-        return (gain <= threshold) & ~self.planning_phase(ctx)
+        distance = torch.linalg.vector_norm(ctx.state[:, :2] - ctx.state[:, 4:6], dim=1).cpu()
+        table = self.table(ctx.E)[torch.arange(ctx.E), self.bins(distance)]
+        time_habit = torch.where(torch.isnan(table[:, 0]), float(HABIT_COST), table[:, 0])
+        time_plan = torch.where(torch.isnan(table[:, 1]), float(PLANNING_COST), table[:, 1])
+        gain = (time_habit - HABIT_COST) - (time_plan - PLANNING_COST)  # remaining time planning saves
+        self.last_inputs = {"distance": distance, "time_if_habit": time_habit, "time_if_planning": time_plan,
+                            "planning_gain": gain,
+                            "planning_extra_cost": torch.full((ctx.E,), float(PLANNING_COST - HABIT_COST))}
+        return (gain <= PLANNING_COST - HABIT_COST) & ~self.planning_phase(ctx)
 
 
 class VisionAwareArbitrator:

@@ -96,6 +96,16 @@ class AgentConfig:
     vision_aware_dark: str = "suppress"
     vision_check_ratio: float = 0.5
 
+    # -- integrator (apac_mj/integrator.py) ------------------------------------
+    #: "pass_through" (the paper: the seen position if seen, else the forward model's prediction) or
+    #: "kalman" (a Kalman filter over the forward model: fuses prediction and noisy observation).
+    integrator: str = "pass_through"
+    #: Kalman filter: window (seen steps) of the running innovation averages that estimate the
+    #: forward model's error variance q, q's floor (cm^2), and q before the first innovation (cm^2).
+    kalman_window: int = 200
+    kalman_process_floor: float = 1e-4
+    kalman_initial_process_var: float = 0.25
+
     # -- motor babbling -------------------------------------------------------
     #: Episodes of random actions before learning (the paper gives no number).
     babbling_episodes: int = 10
@@ -151,6 +161,10 @@ class AgentConfig:
             if getattr(self, name) not in choices:
                 raise ValueError(f"{name} must be one of {choices}, got {getattr(self, name)!r}")
         kinds.get(self.vision_aware_base)
+        if self.integrator not in ("pass_through", "kalman"):
+            raise ValueError(f"integrator must be 'pass_through' or 'kalman', got {self.integrator!r}")
+        if self.kalman_window < 1 or self.kalman_process_floor < 0 or self.kalman_initial_process_var < 0:
+            raise ValueError("kalman_window must be >= 1, kalman_process_floor and kalman_initial_process_var >= 0")
         if self.vision_aware_dark not in ("suppress", "check"):
             raise ValueError(f"vision_aware_dark must be 'suppress' or 'check', got {self.vision_aware_dark!r}")
         if self.arbitration_window < 1 or self.arbitration_prior_weight < 0:

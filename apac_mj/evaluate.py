@@ -38,21 +38,20 @@ from tqdm.auto import tqdm
 
 from apac_mj import checkpoint
 from apac_mj.agent import Agent
+from apac_mj.arbitrator import HABIT_COST, PLANNING_COST  # the time cost of one action (re-exported here)
 from apac_mj.config import TrainConfig, task_spec, train_config_from_dict
 from apac_mj.files import atomic_write_parquet
 from apac_mj.kinematics import Geometry, angle_grid, motion_function
 from apac_mj.kinds import arbitrator_for, get as get_kind
-from apac_mj.rollout import EpisodeLoop, OnEpisodeStart, OnStep
+from apac_mj.rollout import EpisodeLoop, OnEpisodeStart, OnStep, running_statistics
 from apac_mj.suite.task_spec import TaskSpec
 from apac_mj.vec_env import VecEnv
 
 PROTOCOLS = ("grid", "occluded", "generalization")
-#: Time cost of one action (the paper's Fig. 6: planning three times slower than a habit).
-PLANNING_COST, HABIT_COST = 3, 1
 #: Environment zone radius in the occluded protocol: its reach test never fires.
 _NO_REACH_RADIUS = 1e-9
 COLUMNS = ("seed", "target_index", "target_x", "target_y", "success", "steps", "final_distance", "habit_actions",
-           "planning_actions", "time_cost", "judged_reached")
+           "planning_actions", "time_cost", "judged_reached", "estimate_error")
 
 
 def load_run(run_dir: Path, device: str | None = None) -> tuple[TrainConfig, Agent, dict[str, Any]]:
@@ -131,7 +130,7 @@ def evaluate(run_dir: str | Path, protocols: Sequence[str] = ("grid", "occluded"
         targets = [t[:limit] for t in targets] if limit is not None else targets
         rows = run_protocol(cfg, agent, spec, lengths, targets, occluded=protocol == "occluded",
                             progress=progress, on_step=on_step, on_episode_start=on_episode_start,
-                            arbitrator_state=ckpt.get("arbitrator"))
+                            running=running_statistics(ckpt))
         df = pd.DataFrame(rows)
         if protocol == "occluded":
             df = df.drop(columns=["path_x", "path_y"])
@@ -187,14 +186,15 @@ def _eval_env(cfg: TrainConfig, spec: TaskSpec, lengths: np.ndarray, occluded: b
 def run_protocol(cfg: TrainConfig, agent: Agent, spec: TaskSpec, lengths: np.ndarray, targets: list[np.ndarray],
                  occluded: bool, progress: bool = False, on_step: OnStep | None = None,
                  on_episode_start: OnEpisodeStart | None = None,
-                 arbitrator_state: dict[str, Any] | None = None) -> list[dict[str, Any]]:
+                 running: dict[str, Any] | None = None) -> list[dict[str, Any]]:
     """Episode ``i`` of every member goes to its ``targets[k][i]``; all members side by side.
 
-    The arbitrator starts from ``arbitrator_state`` (the checkpoint's running statistics) and keeps
-    them frozen, like the networks."""
+    The arbitrator and the integrator start from ``running`` (the checkpoint's running statistics,
+    :func:`apac_mj.rollout.running_statistics`) and keep them frozen, like the networks."""
     env = _eval_env(cfg, spec, lengths, occluded)
-    episodes = EpisodeLoop(agent, arbitrator_for(cfg.agent, arbitrator_state), env, zone_radius=spec.zone_radius,
+    episodes = EpisodeLoop(agent, arbitrator_for(cfg.agent), env, zone_radius=spec.zone_radius,
                            on_step=on_step, on_episode_start=on_episode_start, adapt=False)
+    episodes.load_state_dict(running or {})
     counts = np.array([len(t) for t in targets])
     rows = []
     for i in tqdm(range(int(counts.max(initial=0))), disable=not progress, desc="evaluate", unit="target"):
@@ -217,21 +217,22 @@ def _episode(cfg: TrainConfig, episodes: EpisodeLoop, spec: TaskSpec, members: n
         for k in np.flatnonzero(stepped):
             path[k].append(info.true_arm[k, :2].copy())
         judged |= stepped & info.terminal & (info.done | occluded)
-    return [_row(env, k, index, st.step, st.habit_n, st.plan_n, path, spec.zone_radius, bool(judged[k]))
-            for k in np.flatnonzero(members)]
+    return [_row(env, k, index, st, path, spec.zone_radius, bool(judged[k])) for k in np.flatnonzero(members)]
 
 
-def _row(env: VecEnv, k: int, index: int, step: np.ndarray, habit_n: np.ndarray, plan_n: np.ndarray,
-         path: list[list[np.ndarray]], zone_radius: float, judged: bool) -> dict[str, Any]:
+def _row(env: VecEnv, k: int, index: int, st: Any, path: list[list[np.ndarray]], zone_radius: float,
+         judged: bool) -> dict[str, Any]:
     """One result row; ``judged_reached``: the episode ended because the agent judged the target
     reached (with vision: it was; occluded: the forward model's estimate was inside the zone)."""
     target = env.targets()[k]
     distance = float(env.distances()[k])
     p = np.array(path[k])
+    step, habit_n, plan_n = st.step, st.habit_n, st.plan_n
     return {"seed": env.seeds[k], "target_index": index, "target_x": float(target[0]), "target_y": float(target[1]),
             "success": distance <= zone_radius, "steps": int(step[k]), "final_distance": distance,
             "habit_actions": int(habit_n[k]), "planning_actions": int(plan_n[k]),
             "time_cost": time_cost(int(habit_n[k]), int(plan_n[k])), "judged_reached": judged,
+            "estimate_error": float(st.estimate_error_sum[k] / max(1, step[k])),
             "path_x": p[:, 0].tolist(), "path_y": p[:, 1].tolist()}
 
 
@@ -254,6 +255,7 @@ def summarize(df: pd.DataFrame, zone_radius: float) -> dict[str, Any]:
             "final_distance_mean": float(df.final_distance.mean()),
             "final_distance_min": float(df.final_distance.min()),
             "final_distance_max": float(df.final_distance.max()), "zone_radius": zone_radius,
+            **({"estimate_error_mean": float(df.estimate_error.mean())} if "estimate_error" in df else {}),
             **_judged_summary(df),
             "success_rate_per_seed": {str(int(s)): float(v) for s, v in per_seed.items()},
             "targets_per_seed": {str(int(s)): int(v) for s, v in df.groupby("seed").size().items()}}

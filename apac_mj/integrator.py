@@ -147,6 +147,8 @@ class KalmanIntegrator(PassThrough):
         self.process_floor, self.window, self.initial_process_var = float(process_floor), window, \
             float(initial_process_var)
         self.process_var = None if process_var is None else float(process_var)
+        #: The process variance learns from the innovations (training); False: frozen (the tests).
+        self.adapt = True
         dev = self.device
         self.P = torch.full((E, 6), self.R, device=dev)
         self.ema_innovation_sq = torch.zeros(E, 4, device=dev)
@@ -189,7 +191,7 @@ class KalmanIntegrator(PassThrough):
 
     def _learn_q(self, seen: torch.Tensor, innovation: torch.Tensor) -> None:
         """Fold this step's innovations of the ``seen`` members into the averages (``P`` is the pre-prediction one)."""
-        if self.process_var is not None:
+        if self.process_var is not None or not self.adapt:
             return
         self.count = self.count + seen.long()
         rate = (1.0 / self.count.clamp(min=1, max=self.window).to(self.P.dtype))[:, None]
@@ -223,3 +225,18 @@ class KalmanIntegrator(PassThrough):
             loaded[key] = t.to(self.device, getattr(self, key).dtype).clone()
         for key, t in loaded.items():
             setattr(self, key, t)
+
+
+#: The integrators by ``AgentConfig.integrator`` name.
+INTEGRATORS = {PassThrough.name: PassThrough, KalmanIntegrator.name: KalmanIntegrator}
+
+
+def build(cfg: Any, E: int, obs_std: float, device: torch.device | str = "cpu") -> PassThrough:
+    """The integrator ``cfg.integrator`` (an ``AgentConfig``) for ``E`` members; ``obs_std``: the task's
+    observation noise (cm, ``TaskSpec.observation_noise_std``), the Kalman filter's ``R``."""
+    if cfg.integrator == KalmanIntegrator.name:
+        return KalmanIntegrator(E, obs_std, process_floor=cfg.kalman_process_floor, window=cfg.kalman_window,
+                                initial_process_var=cfg.kalman_initial_process_var, device=device)
+    if cfg.integrator == PassThrough.name:
+        return PassThrough(E, device)
+    raise ValueError(f"integrator must be one of {sorted(INTEGRATORS)}, got {cfg.integrator!r}")

@@ -21,7 +21,7 @@ from apac_mj import checkpoint, kinds
 from apac_mj.agent import Agent
 from apac_mj.config import AgentConfig, TrainConfig, task_spec, train_config_from_dict
 from apac_mj.kinematics import Geometry
-from apac_mj.rollout import EpisodeLoop
+from apac_mj.rollout import EpisodeLoop, running_statistics
 from apac_mj.vec_env import VecEnv
 
 
@@ -52,13 +52,14 @@ def record(out: str | Path, run: str | Path | None = None, task: str | None = No
     from apac_mj.render import write_video
     from apac_mj.trainer import config_dict
 
-    cfg, net, first, env_state, arbitration = load_agent(run, task, agent, seed, member, as_episode)
+    cfg, net, first, env_state, running = load_agent(run, task, agent, seed, member, as_episode)
     member = member if run is not None else 0
     env = rollout_env(cfg, seed, env_state)
     with EpisodeRecorder(out.parent, 1, config_dict(cfg), member=member, out=out,
                          keep_frames=video is not None) as recorder:
-        loop = EpisodeLoop(net, kinds.arbitrator_for(cfg.agent, arbitration), env, on_step=recorder.on_step,
+        loop = EpisodeLoop(net, kinds.arbitrator_for(cfg.agent), env, on_step=recorder.on_step,
                            on_episode_start=recorder.on_episode_start, adapt=False)
+        loop.load_state_dict(running)
         for k in tqdm(range(episodes), desc="record", unit="episode", disable=not progress):
             loop.run_episode(np.ones(env.E, dtype=bool), first + k)
     if video is not None:
@@ -86,8 +87,8 @@ def _check(out: Path, run: str | Path | None, video: Path | None, episodes: int,
 
 def load_agent(run: str | Path | None, task: str | None, agent: str | None, seed: int, member: int,
                as_episode: int | None) -> tuple[TrainConfig, Agent, int, dict[str, Any] | None, dict[str, Any]]:
-    """(config, agent, first arbitrator episode, the run's environment state or None, the arbitrator's
-    running statistics): from a run's latest checkpoint, or fresh networks seeded from ``seed``."""
+    """(config, agent, first arbitrator episode, the run's environment state or None, the arbitrator's and
+    the integrator's running statistics): from a run's latest checkpoint, or fresh networks seeded from ``seed``."""
     if run is None:
         cfg = TrainConfig(task=task or "changing_target", seeds=(seed,), agent=AgentConfig(agent=agent or kinds.DEFAULT))
         net = Agent(cfg.agent, cfg.seeds, geometry=Geometry.from_spec(task_spec(cfg)))
@@ -108,9 +109,10 @@ def load_agent(run: str | Path | None, task: str | None, agent: str | None, seed
     env_state = ckpt["env"] if task in (None, cfg.task) else None
     cfg.task = task or cfg.task
     trained = int(ckpt["loop"]["episode"][member])
-    # the run's arbitrator statistics, unless the networks are re-arbitrated as another kind
-    arbitration = ckpt.get("arbitrator", {}) if agent in (None, run_cfg["agent"]["agent"]) else {}
-    return cfg, net, max(trained, 0) if as_episode is None else as_episode, env_state, arbitration
+    running = running_statistics(ckpt)
+    if agent not in (None, run_cfg["agent"]["agent"]):
+        running.pop("arbitrator", None)  # re-arbitrated as another kind: its own rule starts fresh
+    return cfg, net, max(trained, 0) if as_episode is None else as_episode, env_state, running
 
 
 def _say_overrides(run: str | Path, task: str | None, agent: str | None, seed: int, cfg: TrainConfig) -> None:

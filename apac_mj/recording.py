@@ -47,7 +47,7 @@ DELTA_THRESHOLD = "series/arbitration/threshold"
 CONTROLLER = "series/arbitration/controller"
 #: The arbitrator's decision inputs, one series each: ``ARBITRATION_INPUTS/<name>`` (the rule's ``last_inputs``).
 ARBITRATION_INPUTS = "series/arbitration/inputs"
-#: The integrator's error: mean over hand and elbow of |estimate - MuJoCo| (cm).
+#: The integrator's error: mean over hand, elbow and target of |estimate - truth| (cm).
 ESTIMATE_ERROR = "series/state_estimate_error"
 FORWARD_ERROR = "series/forward_model_error"
 KINEMATICS_ERROR = "series/kinematics_error"
@@ -101,8 +101,8 @@ class StepRecord:
     vision: bool = True
     reached: bool = False
     done: bool = False
-    #: The integrator's estimate of ``true_arm`` after the step (NaN where none).
-    estimated_arm: np.ndarray = dataclasses.field(default_factory=lambda: np.full(4, np.nan))
+    #: The integrator's estimate of ``[true_arm, target]`` after the step (NaN where none).
+    estimated_state: np.ndarray = dataclasses.field(default_factory=lambda: np.full(6, np.nan))
     #: The arbitrator's inputs to the decision that chose this step's controller (``name -> value``).
     arbitration: dict[str, float] = dataclasses.field(default_factory=dict)
 
@@ -119,7 +119,7 @@ class StepRecord:
             reward=float(at("reward")), distance=float(at("distance")), delta=float(at("delta")),
             habit=bool(at("habit")), predicted_arm=_f64(at("predicted_arm")),
             vision=bool(at("vision")), reached=bool(at("reached")), done=bool(at("done")),
-            estimated_arm=_f64(np.asarray(info.next_state)[member, :4]),
+            estimated_state=_f64(np.asarray(info.next_state)[member]),
             arbitration={k: float(np.asarray(v)[member]) for k, v in getattr(info, "arbitration", {}).items()},
         )
 
@@ -135,8 +135,9 @@ def kinematics_error(rec: StepRecord, origin: Sequence[float] = DEFAULT_ORIGIN) 
 
 
 def estimate_error(rec: StepRecord) -> float:
-    """Mean over hand and elbow of the integrator's error |estimate - MuJoCo| (cm); NaN without one."""
-    return float(np.linalg.norm((rec.estimated_arm - rec.true_arm).reshape(2, 2), axis=1).mean())
+    """Mean over hand, elbow and target of the integrator's error |estimate - truth| (cm); NaN without one."""
+    truth = np.concatenate([rec.true_arm, rec.target])
+    return float(np.linalg.norm((rec.estimated_state - truth).reshape(3, 2), axis=1).mean())
 
 
 def forward_model_error(rec: StepRecord) -> float:

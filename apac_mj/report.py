@@ -56,7 +56,8 @@ AGENT_LABEL, AGENT_COLOR = _KindView("label"), _KindView("color")
 #: The paper's abbreviations (Fig. 4): target / kinematics, s = static, c = changing. Another condition
 #: (a task of the user's) is called by its name, labelled by its description and coloured from EXTRA_COLORS.
 COND_SHORT = {"static_target": "ss", "static_target_changing_kinematics": "sc",
-              "changing_target": "cs", "changing_target_changing_kinematics": "cc"}
+              "changing_target": "cs", "changing_target_changing_kinematics": "cc",
+              "changing_target_noisy": "cs noisy", "changing_target_intermittent": "cs interm."}
 COND_LABEL = {"static_target": "static target / static kinematics",
               "static_target_changing_kinematics": "static target / changing kinematics",
               "changing_target": "changing target / static kinematics",
@@ -136,6 +137,10 @@ QUANTITIES = {
                              "%"),
     "occluded_distance_judged": ("Fig. 9", "occluded vision: final distance when the forward model judged it reached",
                                  "cm"),
+    "test_habit_fraction": ("Fig. 11", "habitual share of test actions (angle grid)", "%"),
+    "test_time": ("Fig. 11", "test time per episode (planning = 3 x habit; angle grid)", "habit-step units"),
+    "estimate_error_late": ("Fig. 11", "state-estimate error |estimate - truth| (hand, elbow, target), last 20%", "cm"),
+    "test_estimate_error": ("Fig. 11", "state-estimate error on the test grid", "cm"),
 }
 
 
@@ -254,6 +259,8 @@ def per_seed(metrics: pd.DataFrame, tests: pd.DataFrame) -> pd.DataFrame:
     arb = lt[lt["agent"].isin(_arbitrating(lt))].groupby(keys)
     habit, actions = arb["habit_actions"].sum(), arb["habit_actions"].sum() + arb["planning_actions"].sum()
     rows.append(_q("habit_fraction_late", 100 * habit / actions, actions, k=habit))
+    if "estimate_error" in lt and lt["estimate_error"].notna().any():  # results from before it lack the column
+        rows.append(_q("estimate_error_late", g["estimate_error"].mean(), g.size()))
     if not tests.empty:
         grid_tests = tests[tests["protocol"] == "grid"]
         grid = grid_tests.groupby(keys)
@@ -262,6 +269,13 @@ def per_seed(metrics: pd.DataFrame, tests: pd.DataFrame) -> pd.DataFrame:
         every = grid.size().index  # seeds that reached nothing: NaN value, 0 samples, their targets counted in "of"
         rows.append(_q("test_steps_to_reach", reached["steps"].mean().reindex(every),
                        reached.size().reindex(every).fillna(0), of=grid.size()))
+        rows.append(_q("test_time", grid["time_cost"].mean(), grid.size()))
+        arb_tests = grid_tests[grid_tests["agent"].isin(_arbitrating(grid_tests))].groupby(keys)
+        t_habit = arb_tests["habit_actions"].sum()
+        t_actions = t_habit + arb_tests["planning_actions"].sum()
+        rows.append(_q("test_habit_fraction", 100 * t_habit / t_actions, t_actions, k=t_habit))
+        if "estimate_error" in grid_tests and grid_tests["estimate_error"].notna().any():
+            rows.append(_q("test_estimate_error", grid["estimate_error"].mean(), grid.size()))
         gen = tests[tests["protocol"] == "generalization"].groupby(keys)
         rows.append(_rate("generalization_success", gen["success"]))
         rows.append(_q("generalization_targets", gen["target_index"].nunique().astype(float), gen.size()))
@@ -705,6 +719,36 @@ def fig_occluded(tests: pd.DataFrame, table: pd.DataFrame, path: Path) -> Path:
                                           "share and distance are means over seeds, as in report.md)")
 
 
+#: The scoreboard's panels: (quantity, title, y label, y limits or None).
+SCOREBOARD = (
+    ("train_success_late", "training success, last 20%", "success rate (%)", (0, 105)),
+    ("test_success", "test success (angle grid)", "success rate (%)", (0, 105)),
+    ("test_habit_fraction", "habitual share of test actions", "habit share (%)", (0, 105)),
+    ("test_time", "test time per episode (planning = 3 x habit)", "habit-step units", None),
+    ("occluded_distance_judged", "in the dark: final distance when judged reached", "cm", None),
+    ("test_estimate_error", "state-estimate error on the test grid", "cm", None),
+)
+
+
+def fig_scoreboard(table: pd.DataFrame, seed_values: pd.DataFrame, path: Path) -> Path:
+    """Fig. 11: every agent x condition on the quantities that weigh arbitrators and integrators."""
+    panels = [p for p in SCOREBOARD if (table["quantity"] == p[0]).any()]
+    sel = table[table["quantity"].isin([p[0] for p in panels])]
+    agents, conds = _agents(sel), _conditions(sel)
+    ncols = 3
+    axes = _axes((len(panels) + ncols - 1) // ncols, ncols, w=max(4.2, 0.45 * len(agents) * len(conds) + 1.5))
+    for ax, (q, title, ylabel, ylim) in zip(axes.flat, panels):
+        _bars(ax, table, seed_values, q, conds, agents)
+        _style(ax, title, "condition", ylabel, ylim=ylim)
+    for ax in list(axes.flat)[len(panels):]:
+        ax.set_visible(False)
+    for ax in list(axes.flat)[1:len(panels)]:
+        if ax.get_legend():
+            ax.get_legend().remove()
+    return _save(axes[0, 0].figure, path, "Fig. 11: scoreboard (bars: mean over seeds with the 95% interval of "
+                                          "report.md; dots: single seeds)")
+
+
 def _table_mean(table: pd.DataFrame, quantity: str, agent: str, cond: str) -> float:
     sel = table[(table["quantity"] == quantity) & (table["agent"] == agent) & (table["condition"] == cond)]
     return float(sel["mean"].iloc[0]) if len(sel) else math.nan
@@ -802,6 +846,10 @@ def write_report(results: str | Path, out: str | Path | None = None, title: str 
         Figure("fig9_occluded.png", "Occluded vision: final distance to the target (paper Fig. 9).",
                lambda: fig_occluded(tests, table, out / "fig9_occluded.png"), "occluded" in protocols),
     ]
+    figures.append(Figure("fig11_scoreboard.png", "Scoreboard: success, habit share, time, distance in the dark, "
+                          "state-estimate error (not in the paper).",
+                          lambda: fig_scoreboard(table, seed_values, out / "fig11_scoreboard.png"),
+                          "grid" in protocols))
     if all(c in metrics and metrics[c].notna().any() for c, _ in LOSSES):  # older results lack the columns
         figures.append(Figure("fig10_losses.png", "Training losses per episode (not in the paper).",
                               lambda: fig_losses(metrics, out / "fig10_losses.png")))

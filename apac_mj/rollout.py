@@ -34,7 +34,7 @@ import numpy as np
 import torch
 
 from apac_mj.arbitrator import HISTORY, ArbitrationContext, Arbitrator, push_delta
-from apac_mj.integrator import integrate
+from apac_mj import integrator as integrators
 from apac_mj.suite.planar_arm import ACTION_BOUND
 from apac_mj.vec_env import Observation, VecEnv
 
@@ -93,12 +93,14 @@ class EpisodeState:
     recent_deltas: np.ndarray | None = None  # [E, HISTORY] this episode's last TD errors, oldest first (NaN pad)
     vision: np.ndarray | None = None         # [E] bool: the current state was seen
     forward_error: np.ndarray | None = None  # [E] forward model's error at the last seen step (cm; NaN: none)
+    estimate_error_sum: np.ndarray | None = None  # [E] this episode's sum over steps of the integrator's error (cm)
 
     def __post_init__(self) -> None:
         E = len(self.step)
         self.recent_deltas = np.full((E, HISTORY), np.nan) if self.recent_deltas is None else self.recent_deltas
         self.vision = np.ones(E, dtype=bool) if self.vision is None else self.vision
         self.forward_error = np.full(E, np.nan) if self.forward_error is None else self.forward_error
+        self.estimate_error_sum = np.zeros(E) if self.estimate_error_sum is None else self.estimate_error_sum
 
     @staticmethod
     def fresh_fields(E: int, device: torch.device) -> dict[str, Any]:
@@ -118,6 +120,7 @@ class EpisodeState:
         self.step[mask], self.last_delta[mask], self.ret[mask] = 0, np.nan, 0.0
         self.habit_n[mask], self.plan_n[mask] = 0, 0
         self.recent_deltas[mask], self.vision[mask], self.forward_error[mask] = np.nan, True, np.nan
+        self.estimate_error_sum[mask] = 0.0
 
     def advance(self, info: StepInfo, mask: np.ndarray, counted: np.ndarray | None = None,
                 next_state: np.ndarray | None = None) -> None:
@@ -132,6 +135,7 @@ class EpisodeState:
         self.forward_error = np.where(mask & info.vision, error, self.forward_error)
         self.vision = np.where(mask, info.vision, self.vision)
         self.ret += np.where(mask, info.reward, 0.0)
+        self.estimate_error_sum += np.where(mask, estimate_error(info), 0.0)
         self.habit_n += counted & info.habit
         self.plan_n += counted & ~info.habit
         self.step += mask
@@ -152,6 +156,13 @@ class EpisodeState:
                                   forward_error=torch.tensor(self.forward_error, dtype=torch.float32),
                                   habit_action=agent.actor_action(state), predict_end=predict_end,
                                   zone_radius=float(zone_radius))
+
+
+def estimate_error(info: StepInfo) -> np.ndarray:
+    """``[E]`` the integrator's error after the step: mean over hand, elbow and target of the distance
+    between the estimate and the truth (MuJoCo's sites) (cm)."""
+    truth = np.concatenate([info.true_arm, info.target], axis=1)
+    return np.linalg.norm((info.next_state - truth).reshape(-1, 3, 2), axis=-1).mean(-1)
 
 
 def select_action(agent: Any, arbitrator: Arbitrator, ctx: ArbitrationContext, active: np.ndarray,
@@ -176,6 +187,12 @@ def decision_inputs(arbitrator: Arbitrator) -> dict[str, np.ndarray]:
             for k, v in getattr(arbitrator, "last_inputs", {}).items()}
 
 
+def running_statistics(ckpt: dict[str, Any]) -> dict[str, Any]:
+    """The arbitrator's and the integrator's running statistics in a checkpoint (:meth:`EpisodeLoop.state_dict`;
+    absent in checkpoints from before them)."""
+    return {k: ckpt[k] for k in ("arbitrator", "integrator") if k in ckpt}
+
+
 Override = Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
 
 
@@ -190,16 +207,38 @@ class EpisodeLoop:
 
     def __init__(self, agent: Any, arbitrator: Arbitrator, env: VecEnv, zone_radius: float | None = None,
                  on_step: OnStep | None = None, on_episode_start: OnEpisodeStart | None = None,
-                 adapt: bool = True) -> None:
+                 adapt: bool = True, integrator: Any = None) -> None:
         self.agent, self.arbitrator, self.env, self.zone_radius = agent, arbitrator, env, zone_radius
         self.on_step, self.on_episode_start = on_step, on_episode_start
-        #: The arbitrator's running statistics learn from the steps (training); False: frozen (tests).
+        #: The arbitrator's and the integrator's running statistics learn from the steps (training);
+        #: False: frozen (tests).
         self.adapt = adapt
+        #: The state estimate (apac_mj.integrator): default ``agent.cfg.integrator`` with the task's noise.
+        self.integrator = integrator if integrator is not None else integrators.build(
+            agent.cfg, env.E, env.spec.observation_noise_std, agent.device)
+        if hasattr(self.integrator, "adapt"):
+            self.integrator.adapt = adapt
+
+    def state_dict(self) -> dict[str, Any]:
+        """The running statistics a checkpoint keeps: the arbitrator's and the integrator's."""
+        arbitrator = self.arbitrator.state_dict() if hasattr(self.arbitrator, "state_dict") else {}
+        return {"arbitrator": arbitrator, "integrator": self.integrator.state_dict()}
+
+    def load_state_dict(self, d: dict[str, Any]) -> None:
+        """Restore :meth:`state_dict` (missing parts: kept as built; a checkpoint from before them)."""
+        if d.get("arbitrator"):
+            if not hasattr(self.arbitrator, "load_state_dict"):
+                raise ValueError(f"{type(self.arbitrator).__name__} keeps no statistics, got {sorted(d['arbitrator'])}")
+            self.arbitrator.load_state_dict(d["arbitrator"])
+        if "integrator" in d:
+            self.integrator.load_state_dict(d["integrator"])
 
     def start(self, st: EpisodeState, mask: np.ndarray, reset_noise: bool = True) -> None:
         """New episodes for the members in ``mask``: reset their environment and carried state."""
         obs = self.env.reset(mask)
-        st.reset(mask, observed_state(obs, st.state.device))
+        seen = observed_state(obs, st.state.device)
+        st.reset(mask, seen)
+        self.integrator.reset(np.asarray(mask, dtype=bool), seen)
         if reset_noise:
             self.agent.noise.reset(torch.as_tensor(mask))
         if self.on_episode_start is not None:
@@ -216,7 +255,7 @@ class EpisodeLoop:
         if override is not None:
             action, habit = override(action, habit)
         info = agent_step(self.agent, self.env, st.state, episode, st.step, active, action, habit,
-                          zone_radius=self.zone_radius)
+                          zone_radius=self.zone_radius, integrator=self.integrator)
         info.arbitration = inputs
         return info
 
@@ -263,11 +302,12 @@ class EpisodeLoop:
 
 def agent_step(agent: Any, vec_env: VecEnv, state: torch.Tensor, episode: np.ndarray, step: np.ndarray,
                active: np.ndarray, action: torch.Tensor, habit: torch.Tensor,
-               zone_radius: float | None = None) -> StepInfo:
+               zone_radius: float | None = None, integrator: Any = None) -> StepInfo:
     """One step of the ``active`` members with ``action`` ``[E,2]`` (``habit`` ``[E]``: the actor chose it).
 
     ``zone_radius`` is the radius the agent uses to judge its own estimate
-    under occlusion (default: the task's).
+    under occlusion (default: the task's); ``integrator`` makes ``s_{t+1}`` from the prediction and the
+    observation (default: the paper's pass-through).
     """
     device = state.device
     executable = agent.executable(action, state)  # what the plant will do: every network sees this action
@@ -275,9 +315,8 @@ def agent_step(agent: Any, vec_env: VecEnv, state: torch.Tensor, episode: np.nda
     obs = vec_env.step(action.detach().cpu().double().numpy(), active)
     vision = torch.as_tensor(obs.vision, device=device)
     seen = observed_state(obs, device)
-    next_arm = integrate(seen[:, :4], predicted, vision)
-    next_target = torch.where(vision[:, None], seen[:, 4:], state[:, 4:])
-    next_state = torch.cat([next_arm, next_target], dim=1)
+    integrator = integrators.PassThrough(vec_env.E, device) if integrator is None else integrator
+    next_state = integrator.update(state, predicted, seen, vision, torch.as_tensor(active, device=device))
     radius = vec_env.spec.zone_radius if zone_radius is None else zone_radius
     est_distance = torch.linalg.vector_norm(next_state[:, :2] - next_state[:, 4:], dim=1)
     reward = torch.where(vision, torch.as_tensor(obs.reward, dtype=torch.float32, device=device), -est_distance)

@@ -60,16 +60,16 @@ from apac_mj import checkpoint
 from apac_mj.agent import Agent
 from apac_mj.config import TrainConfig, task_spec, to_dict
 from apac_mj.files import atomic_write_parquet
-from apac_mj.kinds import arbitrator_for, arbitrator_state
+from apac_mj.kinds import arbitrator_for
 from apac_mj.kinematics import Geometry
-from apac_mj.rollout import EpisodeLoop, EpisodeState, OnEpisodeStart, OnStep, StepInfo
+from apac_mj.rollout import EpisodeLoop, EpisodeState, OnEpisodeStart, OnStep, StepInfo, running_statistics
 from apac_mj.vec_env import VecEnv
 
 #: Episodes (all seeds) in the progress bar's running success rate and habit share.
 PROGRESS_WINDOW = 20
 METRIC_COLUMNS = ("seed", "episode", "phase", "success", "steps", "return", "final_distance", "habit_actions",
                   "planning_actions", "l1", "l2", "target_x", "target_y", "critic_loss", "actor_loss",
-                  "forward_loss", "inverse_loss")
+                  "forward_loss", "inverse_loss", "estimate_error")
 #: The agent's losses (``Agent.update``) in the order of the ``*_loss`` metric columns.
 LOSS_NAMES = ("critic", "actor", "forward", "inverse")
 CKPT_KEYS = ("config", "loop", "agent", "env", "babbling_generators", "metric_rows")
@@ -141,17 +141,15 @@ def train(cfg: TrainConfig, out_dir: str | Path, progress: bool = True, on_step:
     agent = Agent(cfg.agent, seeds, device=cfg.device, precision=cfg.precision,
                   geometry=Geometry.from_spec(task_spec(cfg)))
     babble_gens = babbling_generators(seeds)
-    arbitrator = arbitrator_for(cfg.agent)
+    episodes = EpisodeLoop(agent, arbitrator_for(cfg.agent), env)
     loop, rows, saved_at = LoopState.fresh(len(seeds), cfg.agent.babbling_episodes, agent.device), [], None
     if checkpoint.run_checkpoints(out_dir / "checkpoints"):
-        loop, rows = _restore(out_dir, config, agent, env, babble_gens, arbitrator)
+        loop, rows = _restore(out_dir, config, episodes, babble_gens)
         saved_at = loop.slowest()
         _say_resume(out_dir, loop, run_episodes, cfg.episodes)
     _write_config(out_dir, config, run_episodes)
     recorder = _recorder(out_dir, record_every, config)
-    on_step, on_episode_start = _chain_hooks(recorder, on_step, on_episode_start)
-    episodes = EpisodeLoop(agent, arbitrator, env, on_step=on_step,
-                           on_episode_start=on_episode_start)
+    episodes.on_step, episodes.on_episode_start = _chain_hooks(recorder, on_step, on_episode_start)
     bar, window = _progress_bar(cfg, loop, rows, progress)
     saved = _Saved(saved_at)
     try:
@@ -311,6 +309,7 @@ def _finish_episodes(loop: LoopState, info: StepInfo, seeds: list[int]) -> list[
                      "planning_actions": int(loop.plan_n[k]), "l1": float(info.link_lengths[k, 0]),
                      "l2": float(info.link_lengths[k, 1]), "target_x": float(info.target[k, 0]),
                      "target_y": float(info.target[k, 1]),
+                     "estimate_error": float(loop.estimate_error_sum[k] / max(1, loop.step[k])),
                      **{f"{n}_loss": float(loop.loss_sum[k, i] / loop.loss_n[k]) if loop.loss_n[k] else float("nan")
                         for i, n in enumerate(LOSS_NAMES)}})
         loop.episode[k] += 1
@@ -466,7 +465,7 @@ def _save(out_dir: Path, config: dict[str, Any], loop: LoopState, episodes: Epis
     """metrics.parquet, then the checkpoint as latest.pt (the one before it kept as previous.pt)."""
     write_metrics(out_dir / "metrics.parquet", rows)
     ckpt = {"config": config, "loop": loop.state_dict(), "agent": episodes.agent.state_dict(),
-            "env": episodes.env.get_state(), "arbitrator": arbitrator_state(episodes.arbitrator),
+            "env": episodes.env.get_state(), **episodes.state_dict(),
             "babbling_generators": [g.get_state() for g in babble_gens], "metric_rows": len(rows),
             "torch_rng": torch.get_rng_state()}
     ckpt_dir = out_dir / "checkpoints"
@@ -474,25 +473,26 @@ def _save(out_dir: Path, config: dict[str, Any], loop: LoopState, episodes: Epis
     checkpoint.prune(ckpt_dir, "ckpt_*.pt", 0)  # the numbered checkpoints of older versions
 
 
-def _restore(out_dir: Path, config: dict[str, Any], agent: Agent, env: VecEnv,
-             babble_gens: list[torch.Generator], arbitrator: Any) -> tuple[LoopState, list[dict[str, Any]]]:
+def _restore(out_dir: Path, config: dict[str, Any], episodes: EpisodeLoop,
+             babble_gens: list[torch.Generator]) -> tuple[LoopState, list[dict[str, Any]]]:
     """Load the newest intact checkpoint (warning when it is not latest.pt) into the agent and env."""
     metrics = out_dir / "metrics.parquet"
     restored: dict[str, Any] = {}
 
     def check(ckpt: dict[str, Any], path: Path) -> None:
         restored["rows"] = read_metric_rows(metrics, int(ckpt["metric_rows"]))
-        restored["loop"] = _apply(ckpt, path, config, agent, env, babble_gens, arbitrator)
+        restored["loop"] = _apply(ckpt, path, config, episodes, babble_gens)
 
     checkpoint.load_newest_intact(checkpoint.run_checkpoints(out_dir / "checkpoints"), required=CKPT_KEYS,
                                   check=check, warn=say)
     return restored["loop"], restored["rows"]
 
 
-def _apply(ckpt: dict[str, Any], path: Path, config: dict[str, Any], agent: Agent, env: VecEnv,
-           babble_gens: list[torch.Generator], arbitrator: Any) -> LoopState:
+def _apply(ckpt: dict[str, Any], path: Path, config: dict[str, Any], episodes: EpisodeLoop,
+           babble_gens: list[torch.Generator]) -> LoopState:
     """Put a loaded checkpoint into the agent, the environments and the generators (same config but
     the episode count, which an extended run changes)."""
+    agent, env = episodes.agent, episodes.env
     diff = _diff({**ckpt["config"], "episodes": None}, {**config, "episodes": None})
     if diff:
         raise checkpoint.CheckpointError(f"checkpoint {path} is corrupt or incompatible: it was written with a "
@@ -503,8 +503,7 @@ def _apply(ckpt: dict[str, Any], path: Path, config: dict[str, Any], agent: Agen
         for g, s in zip(babble_gens, ckpt["babbling_generators"], strict=True):
             g.set_state(s)
         loop = LoopState.from_state_dict(ckpt["loop"], agent.device)
-        if ckpt.get("arbitrator"):
-            arbitrator.load_state_dict(ckpt["arbitrator"])
+        episodes.load_state_dict(running_statistics(ckpt))
     except (KeyError, ValueError, RuntimeError, TypeError, AttributeError) as e:
         raise checkpoint.CheckpointError(f"checkpoint {path} is corrupt or incompatible: "
                                          f"{type(e).__name__}: {e}") from None
