@@ -339,6 +339,10 @@ class SpeedAccuracyArbitrator(RunningArbitrator):
     STATS = {**{f"time_{c}_{b}": float("nan") for c in ("habit", "planning") for b in range(len(DISTANCE_EDGES) + 1)},
              "pending_bin": float("nan"), "pending_habit": float("nan"), "pending_cost": float("nan")}
 
+    def __init__(self, cfg: AgentConfig) -> None:
+        super().__init__(cfg)
+        self.rate = 1.0 / cfg.speed_accuracy_window  # per visit of a table entry
+
     def bins(self, distance: torch.Tensor) -> torch.Tensor:
         return torch.bucketize(distance.float(), torch.tensor(self.DISTANCE_EDGES))
 
@@ -394,11 +398,9 @@ class VisionAwareArbitrator:
     the forward model predicts its proposal lands in the zone or at least ``vision_check_ratio`` closer
     (``"check"``)."""
 
-    def __init__(self, cfg: AgentConfig) -> None:
-        from apac_mj import kinds
-
-        # the base is built with the default base, so that naming a vision-aware kind fails below, not recursing
-        self.base = kinds.get(cfg.vision_aware_base).arbitrator(dataclasses.replace(cfg, vision_aware_base=kinds.DEFAULT))
+    def __init__(self, cfg: AgentConfig, base: Arbitrator) -> None:
+        """``base``: the rule that decides with vision (the registry builds ``cfg.vision_aware_base``'s)."""
+        self.base = base
         if isinstance(self.base, VisionAwareArbitrator):
             raise ValueError(f"vision_aware_base {cfg.vision_aware_base!r} is itself vision-aware; name a kind "
                              "with another rule (e.g. apac)")

@@ -86,6 +86,9 @@ class AgentConfig:
     #: Weight (in transitions) of a running statistic against this episode's own TD errors when the
     #: uncertainty and reliability rules blend them.
     arbitration_prior_weight: float = 4.0
+    #: Speed-accuracy rule: window (visits of an entry) of its learned time-cost table: a short one, so the
+    #: planning phase's early, long episodes (an immature planner, annealed noise) are soon forgotten.
+    speed_accuracy_window: int = 20
     #: Reliability rule (Lee et al. 2014): the transition rates' amplitude A and slope B.
     reliability_rate: float = 0.5
     reliability_slope: float = 6.0
@@ -167,8 +170,8 @@ class AgentConfig:
             raise ValueError("kalman_window must be >= 1, kalman_process_floor and kalman_initial_process_var >= 0")
         if self.vision_aware_dark not in ("suppress", "check"):
             raise ValueError(f"vision_aware_dark must be 'suppress' or 'check', got {self.vision_aware_dark!r}")
-        if self.arbitration_window < 1 or self.arbitration_prior_weight < 0:
-            raise ValueError("arbitration_window must be >= 1 and arbitration_prior_weight >= 0")
+        if self.arbitration_window < 1 or self.speed_accuracy_window < 1 or self.arbitration_prior_weight < 0:
+            raise ValueError("arbitration_window and speed_accuracy_window must be >= 1, arbitration_prior_weight >= 0")
         if not (0 < self.vision_check_ratio <= 1) or self.reliability_rate <= 0 or self.reliability_slope <= 0:
             raise ValueError("vision_check_ratio must be in (0, 1], reliability_rate and reliability_slope > 0")
         if self.critic_action not in ("executed", "commanded"):

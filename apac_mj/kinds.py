@@ -137,11 +137,22 @@ register(AgentKind("ddpg", "DDPG", "tab:orange", _builtin("AlwaysHabit"), uses_p
 register(AgentKind("spac", "SPAC", "tab:green", _builtin("AlwaysPlan"), uses_habit=False))
 register(AgentKind("apac", "APAC", "tab:blue", _builtin("DeltaArbitrator")))
 # Beyond the paper (docs/arbitrators.md): APAC's two systems under other arbitration rules.
-register(AgentKind("apac_uncertainty", "APAC-U (uncertainty)", "tab:purple", _builtin("UncertaintyArbitrator")))
-register(AgentKind("apac_reliability", "APAC-R (reliability)", "tab:brown", _builtin("ReliabilityArbitrator")))
-register(AgentKind("apac_speed_accuracy", "APAC-SA (speed-accuracy)", "tab:red",
+register(AgentKind("apac_uncertainty", "APAC-U (uncertainty)", "tab:pink", _builtin("UncertaintyArbitrator")))
+register(AgentKind("apac_reliability", "APAC-R (reliability)", "sienna", _builtin("ReliabilityArbitrator")))
+register(AgentKind("apac_speed_accuracy", "APAC-SA (speed-accuracy)", "crimson",
                    _builtin("SpeedAccuracyArbitrator")))
-register(AgentKind("apac_vision", "APAC-V (vision-aware)", "tab:cyan", _builtin("VisionAwareArbitrator")))
+def _vision_aware(cfg: AgentConfig) -> Arbitrator:
+    """The vision-aware rule over ``cfg.vision_aware_base``'s rule (built with the default base, so that
+    naming a vision-aware kind as the base is refused instead of recursing)."""
+    import dataclasses
+
+    from apac_mj.arbitrator import VisionAwareArbitrator
+
+    base_cfg = dataclasses.replace(cfg, vision_aware_base=DEFAULT)
+    return VisionAwareArbitrator(cfg, base=get(cfg.vision_aware_base).arbitrator(base_cfg))
+
+
+register(AgentKind("apac_vision", "APAC-V (vision-aware)", "darkturquoise", _vision_aware))
 #: The kinds registered here (the built-in ones: they cannot be removed).
 BUILTIN = names()
 #: The paper's kinds (the default agents of a preset).

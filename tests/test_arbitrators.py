@@ -13,7 +13,7 @@ import torch
 
 from apac_mj import checkpoint, kinds
 from apac_mj.arbitrator import (HABIT_COST, PLANNING_COST, ArbitrationContext, ReliabilityArbitrator,
-                                SpeedAccuracyArbitrator, UncertaintyArbitrator, VisionAwareArbitrator, blend, ema)
+                                SpeedAccuracyArbitrator, UncertaintyArbitrator, blend, ema)
 from apac_mj.config import AgentConfig
 from apac_mj.evaluate import evaluate, load_run
 from apac_mj.trainer import train
@@ -114,7 +114,7 @@ def test_reliability_rule_moves_the_probability_of_planning_as_lee_et_al():
 
 
 def test_speed_accuracy_learns_the_time_cost_of_each_controller_by_sarsa():
-    arb = SpeedAccuracyArbitrator(cfg(arbitration_window=1))  # rate 1: each entry is its last target
+    arb = SpeedAccuracyArbitrator(cfg(speed_accuracy_window=1))  # rate 1: each entry is its last target
     one = np.ones(1, bool)
     # an episode: plan at 10 cm (bin 5, cost 3), then a habit step at 3 cm (bin 3, cost 1) reaches
     arb.observe(step([0.0], before=[10.0], habit=[False]), one)
@@ -148,17 +148,18 @@ def test_planning_phase_holds_for_every_new_rule():
 
 def test_vision_aware_rule_suppresses_or_checks_the_habit_in_the_dark():
     vision = torch.tensor([True, False])
-    arb = VisionAwareArbitrator(cfg())
+    arb = kinds.arbitrator_for(AgentConfig(agent="apac_vision", planning_episodes=0))
     assert arb.use_habit(ctx(last_delta=0.0, vision=vision)).tolist() == [True, False]
     assert arb.last_inputs["vision"].tolist() == [1.0, 0.0] and "delta" in arb.last_inputs
-    check = VisionAwareArbitrator(cfg(vision_aware_dark="check", vision_check_ratio=0.5))
+    check = kinds.arbitrator_for(AgentConfig(agent="apac_vision", planning_episodes=0, vision_aware_dark="check",
+                                             vision_check_ratio=0.5))
     state = torch.tensor([[10.0, 0, 0, 0, 0, 0]] * 2)
     for predicted, expected in ((4.9, [True, True]), (5.1, [True, False])):
         c = ctx(last_delta=0.0, vision=vision, state=state, habit_action=torch.zeros(2, 2),
                 predict_end=lambda a, x=predicted: torch.tensor([[x, 0.0]] * 2))
         assert check.use_habit(c).tolist() == expected
     with pytest.raises(ValueError, match="itself vision-aware"):
-        VisionAwareArbitrator(cfg(vision_aware_base="apac_vision"))
+        kinds.arbitrator_for(AgentConfig(agent="apac_vision", vision_aware_base="apac_vision"))
     with pytest.raises(ValueError, match="unknown agent kind"):
         cfg(vision_aware_base="nope")
 

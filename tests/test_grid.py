@@ -1,6 +1,8 @@
 """The experiment grid: presets and their errors, cells, resume, kill -9 and resume, smoke grid + report."""
 from __future__ import annotations
 
+import re
+
 import json
 import os
 import signal
@@ -71,7 +73,11 @@ def test_bad_overrides_name_the_problem(override: str, message: str) -> None:
 
 
 def test_unknown_preset_lists_known_ones(tmp_path: Path) -> None:
-    with pytest.raises(FileNotFoundError, match="known presets: demo, fidelity, paper, quick, smoke"):
+    from apac_mj import paths
+
+    known = ", ".join(sorted(p.stem for p in (paths.tasks_dir() / "presets").glob("*.toml")))
+    assert {"demo", "fidelity", "paper", "quick", "smoke", "arbitrators"} <= set(known.split(", "))
+    with pytest.raises(FileNotFoundError, match=re.escape(f"known presets: {known}")):
         grid.load_preset("huge")
     bad = tmp_path / "bad.toml"
     bad.write_text("agents = [\n")

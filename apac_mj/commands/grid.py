@@ -31,14 +31,20 @@ def fields_help() -> str:
             + field_help(AgentConfig, prefix="agent.", skip=("agent",)))
 
 
+def _preset_names() -> list[str]:
+    from apac_mj import paths
+
+    return sorted(p.stem for p in (paths.tasks_dir() / "presets").glob("*.toml"))
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("grid", help="run the paper's experiment grid (train + test every cell, resumable)",
                        description="Train every (agent, condition) cell of a preset as one ensemble job, then run its "
                                    "frozen-network tests; results go to --out, one sub-directory per cell.",
                        epilog=EPILOG + "\n\n" + fields_help(), formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--preset", default="quick",
-                   help="preset name in tasks/presets/ (paper, quick, smoke, demo) or a path to a .toml file "
-                        "(default: quick)")
+                   help=f"preset name in tasks/presets/ ({', '.join(_preset_names())}) or a path to a .toml "
+                        "file (default: quick)")
     p.add_argument("--out", default=None, help="results directory (default: results/<preset name>)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a preset field (listed below; the grammar of train --set), repeatable: "
