@@ -189,7 +189,8 @@ def step_signals(info: Any) -> dict[str, torch.Tensor]:
             "before": torch.linalg.vector_norm(state[:, :2] - state[:, 4:], dim=1).float(),
             "after": torch.linalg.vector_norm(nxt[:, :2] - nxt[:, 4:], dim=1).float(),
             "cost": torch.where(habit, float(HABIT_COST), float(PLANNING_COST)), "habit": habit,
-            "done": torch.as_tensor(info.done), "terminal": torch.as_tensor(info.terminal)}
+            "done": torch.as_tensor(info.done), "terminal": torch.as_tensor(info.terminal),
+            "episode": torch.as_tensor(info.episode)}
 
 
 class RunningArbitrator:
@@ -329,7 +330,10 @@ class SpeedAccuracyArbitrator(RunningArbitrator):
     after the step), planning's expected gain is the time it saves later, ``R_h - R_p``; planning is worth
     it only where that gain exceeds its extra cost ``PLANNING_COST - HABIT_COST`` (2 habit steps). So
     the threshold follows from the cost and from what the task and the controllers make of it, not a
-    fixed 1. An entry never tried is optimistic (the action's own cost), so each controller is tried;
+    fixed 1. The table learns only once the rule arbitrates (after the planning phase): both controllers
+    are then measured under the same, annealed exploration noise, not planning under the noisy early
+    episodes and the habit under the quiet late ones. An entry never tried is optimistic (the action's
+    own cost), so each controller is tried;
     in training the entry of the controller not chosen drifts back towards that value
     (:data:`UNTRIED_DRIFT`), so a controller abandoned in a bin is tried again as the other one improves.
     """
@@ -358,6 +362,7 @@ class SpeedAccuracyArbitrator(RunningArbitrator):
 
     def learn(self, sig: dict[str, torch.Tensor], mask: torch.Tensor) -> None:
         E = len(mask)
+        mask = mask & (sig["episode"] >= self.planning_episodes)  # it learns what it chooses: after the planning phase
         table = self.table(E)
         rows = torch.arange(E)
         b, c = self.bins(sig["before"]), (~sig["habit"]).long()  # column 0 habit, 1 planning

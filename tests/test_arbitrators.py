@@ -58,7 +58,8 @@ def step(delta, end_error=None, before=None, after=None, habit=None, vision=None
                            vision=np.ones(E, bool) if vision is None else np.asarray(vision),
                            habit=np.zeros(E, bool) if habit is None else np.asarray(habit),
                            done=np.zeros(E, bool) if done is None else np.asarray(done),
-                           terminal=np.zeros(E, bool) if terminal is None else np.asarray(terminal))
+                           terminal=np.zeros(E, bool) if terminal is None else np.asarray(terminal),
+                           episode=np.full(E, 200))
 
 
 def test_ema_and_blend_by_hand():
@@ -126,6 +127,15 @@ def test_speed_accuracy_learns_the_time_cost_of_each_controller_by_sarsa():
     # a time limit adds a planning step's cost
     arb.observe(step([0.0], before=[1.5], habit=[True], done=[True], terminal=[False]), one)
     assert arb.stats["time_habit_2"].item() == HABIT_COST + PLANNING_COST
+    # the planning phase teaches it nothing (the planner acts by schedule there, not by the rule's choice)
+    scheduled = SpeedAccuracyArbitrator(AgentConfig(agent="apac_speed_accuracy", planning_episodes=100))
+    early = step([0.0], before=[1.5], habit=[False], done=[True], terminal=[True])
+    early.episode = np.full(1, 99)
+    scheduled.observe(early, one)
+    assert all(torch.isnan(v).all() for v in scheduled.stats.values() if len(v)), scheduled.stats
+    early.episode = np.full(1, 100)
+    scheduled.observe(early, one)
+    assert scheduled.stats["time_planning_2"].item() == PLANNING_COST
 
     def decide(distance):
         state = torch.tensor([[distance, 0, 0, 0, 0, 0]], dtype=torch.float32)
