@@ -735,8 +735,8 @@ def fig_scoreboard(table: pd.DataFrame, seed_values: pd.DataFrame, path: Path) -
     panels = [p for p in SCOREBOARD if (table["quantity"] == p[0]).any()]
     sel = table[table["quantity"].isin([p[0] for p in panels])]
     agents, conds = _agents(sel), _conditions(sel)
-    ncols = 3
-    axes = _axes((len(panels) + ncols - 1) // ncols, ncols, w=max(4.2, 0.45 * len(agents) * len(conds) + 1.5))
+    ncols = 2
+    axes = _axes((len(panels) + ncols - 1) // ncols, ncols, w=min(9.0, max(4.2, 0.3 * len(agents) * len(conds) + 1.5)))
     for ax, (q, title, ylabel, ylim) in zip(axes.flat, panels):
         _bars(ax, table, seed_values, q, conds, agents)
         _style(ax, title, "condition", ylabel, ylim=ylim)

@@ -255,3 +255,14 @@ def test_recordings_show_which_controller_acted_and_why(tmp_path):
     assert sum("habit acted (distance" in t for t in texts) == len(controller)
     _, err = R.scalar_series(entities[R.ESTIMATE_ERROR])
     assert len(err) == len(controller) and np.all(err > 0), "noisy vision: the estimate is off MuJoCo's arm"
+
+
+def test_state_estimate_error_is_zero_with_perfect_vision_and_the_noise_without(tmp_path):
+    """The metric rows' estimate_error: 0 (float32 rounding) when the arm is seen without noise; under noisy vision
+    the pass-through carries the noise (hand, elbow and target each off by ~0.5 sqrt(pi/2) cm)."""
+    perfect = train(tiny_config((0,), episodes=2, agent="spac"), tmp_path / "p", progress=False)
+    noisy = train(tiny_config((0,), episodes=2, agent="spac", task="changing_target_noisy"), tmp_path / "n",
+                  progress=False)
+    assert (pd.read_parquet(perfect / "metrics.parquet").estimate_error < 1e-5).all()
+    err = pd.read_parquet(noisy / "metrics.parquet").estimate_error
+    assert 0.3 < err.mean() < 0.9, err.tolist()

@@ -18,7 +18,8 @@ from apac_mj import grid, report
 from apac_mj.cli import main
 
 FIGURES = ["fig3_training_success.png", "fig4_test.png", "fig5_arbitration.png", "fig6_steps_time.png",
-           "fig7_trajectories.png", "fig8_generalization.png", "fig9_occluded.png", "fig10_losses.png"]
+           "fig7_trajectories.png", "fig8_generalization.png", "fig9_occluded.png", "fig10_losses.png",
+           "fig11_scoreboard.png"]
 
 
 def _metrics(rng: np.random.Generator, agent: str, seeds, episodes: int) -> pd.DataFrame:
@@ -33,7 +34,8 @@ def _metrics(rng: np.random.Generator, agent: str, seeds, episodes: int) -> pd.D
                              planning_actions=steps - habit, l1=5.0, l2=8.0,
                              target_x=float(rng.random() * 30), target_y=float(rng.random() * 30),
                              critic_loss=float(rng.random() * 10), actor_loss=float(rng.normal() * 5),
-                             forward_loss=float(rng.random()), inverse_loss=float(rng.random() * 100)))
+                             forward_loss=float(rng.random()), inverse_loss=float(rng.random() * 100),
+                             estimate_error=float(rng.random() * 0.5)))
     return pd.DataFrame(rows)
 
 
@@ -46,7 +48,8 @@ def _eval(rng: np.random.Generator, seeds, n_targets: int, with_path: bool) -> p
             row = dict(seed=seed, target_index=t, target_x=float(10 + t % 10), target_y=float(10 + t // 10),
                        success=bool(rng.random() < 0.7), steps=steps, final_distance=float(rng.random() * 2),
                        habit_actions=habit, planning_actions=steps - habit, time_cost=habit + 3 * (steps - habit),
-                       judged_reached=bool(steps < 30 and rng.random() < 0.8))
+                       judged_reached=bool(steps < 30 and rng.random() < 0.8),
+                       estimate_error=float(rng.random() * 0.5))
             if with_path:
                 row.update(path_x=list(rng.random(steps + 1) * 30), path_y=list(rng.random(steps + 1) * 30))
             rows.append(row)
@@ -125,6 +128,26 @@ def test_training_and_arbitration_match_parquet(made) -> None:
     assert _row(table, "habit_fraction_late", "apac", "changing_target")["mean"] == pytest.approx(np.mean(frac))
     time = [(g["habit_actions"] + 3 * g["planning_actions"]).mean() for _, g in late.groupby("seed")]
     assert _row(table, "time_late", "apac", "changing_target")["mean"] == pytest.approx(np.mean(time))
+
+
+def test_test_time_habit_share_and_estimate_error_match_parquet(made) -> None:
+    """Fig. 11's quantities: per seed from the test grid's rows, then the mean over seeds."""
+    results, out = made
+    table = report.load_key_numbers(out)
+    df = pd.read_parquet(results / "apac__changing_target" / "eval" / "grid.parquet")
+    per = df.groupby("seed")
+    time = [g["time_cost"].mean() for _, g in per]
+    habit = [100 * g["habit_actions"].sum() / (g["habit_actions"] + g["planning_actions"]).sum() for _, g in per]
+    error = [g["estimate_error"].mean() for _, g in per]
+    assert _row(table, "test_time", "apac", "changing_target")["mean"] == pytest.approx(np.mean(time))
+    assert _row(table, "test_habit_fraction", "apac", "changing_target")["mean"] == pytest.approx(np.mean(habit))
+    assert _row(table, "test_estimate_error", "apac", "changing_target")["mean"] == pytest.approx(np.mean(error))
+    assert not ((table["quantity"] == "test_habit_fraction") & (table["agent"] == "spac")).any(), \
+        "a kind that never arbitrates has no habit share"
+    metrics = pd.read_parquet(results / "apac__changing_target" / "metrics.parquet")
+    late = metrics[(metrics["phase"] == "train") & (metrics["episode"] >= 24)]
+    est = [g["estimate_error"].mean() for _, g in late.groupby("seed")]
+    assert _row(table, "estimate_error_late", "apac", "changing_target")["mean"] == pytest.approx(np.mean(est))
 
 
 def test_occluded_and_generalization_match_parquet(made) -> None:
