@@ -443,6 +443,17 @@ class VisionAwareArbitrator:
             raise ValueError(f"{type(self.base).__name__} keeps no statistics, got {sorted(d)}")
 
 
+def restore(arbitrator: Arbitrator, state: dict[str, torch.Tensor] | None) -> None:
+    """Load a checkpoint's running statistics into ``arbitrator`` (nothing to load: nothing done; a rule
+    that keeps none refuses a non-empty ``state``)."""
+    if not state:
+        return
+    if not hasattr(arbitrator, "load_state_dict"):
+        raise ValueError(f"the {type(arbitrator).__name__} rule keeps no statistics, but the checkpoint has "
+                         f"{sorted(state)}")
+    arbitrator.load_state_dict(state)
+
+
 def push_delta(history: np.ndarray, delta: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """``history`` ``[E, H]`` with ``delta`` appended (oldest dropped) for the members in ``mask``."""
     shifted = np.concatenate([history[:, 1:], np.asarray(delta, dtype=history.dtype)[:, None]], axis=1)

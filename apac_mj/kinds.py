@@ -106,18 +106,12 @@ def names() -> tuple[str, ...]:
 
 def arbitrator_for(cfg: AgentConfig, state: dict | None = None) -> Arbitrator:
     """The arbitrator of ``cfg.agent``'s kind, built from ``cfg``, with the running statistics ``state``
-    (a checkpoint's ``"arbitrator"`` entry) loaded where given and non-empty."""
+    (a checkpoint's ``"arbitrator"`` entry) loaded where given (:func:`apac_mj.arbitrator.restore`)."""
+    from apac_mj.arbitrator import restore
+
     arbitrator = get(cfg.agent).arbitrator(cfg)
-    if state:
-        if not hasattr(arbitrator, "load_state_dict"):
-            raise ValueError(f"the {cfg.agent!r} arbitrator keeps no statistics, but the checkpoint has {sorted(state)}")
-        arbitrator.load_state_dict(state)
+    restore(arbitrator, state)
     return arbitrator
-
-
-def arbitrator_state(arbitrator: Arbitrator) -> dict:
-    """What a checkpoint keeps of ``arbitrator``: its ``state_dict()`` (empty for rules without one)."""
-    return arbitrator.state_dict() if hasattr(arbitrator, "state_dict") else {}
 
 
 def _builtin(name: str) -> Callable[[AgentConfig], Arbitrator]:

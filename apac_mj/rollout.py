@@ -33,7 +33,7 @@ from typing import Any, Callable, Iterator
 import numpy as np
 import torch
 
-from apac_mj.arbitrator import HISTORY, ArbitrationContext, Arbitrator, push_delta
+from apac_mj.arbitrator import HISTORY, ArbitrationContext, Arbitrator, push_delta, restore
 from apac_mj import integrator as integrators
 from apac_mj.suite.planar_arm import ACTION_BOUND
 from apac_mj.vec_env import Observation, VecEnv
@@ -226,10 +226,7 @@ class EpisodeLoop:
 
     def load_state_dict(self, d: dict[str, Any]) -> None:
         """Restore :meth:`state_dict` (missing parts: kept as built; a checkpoint from before them)."""
-        if d.get("arbitrator"):
-            if not hasattr(self.arbitrator, "load_state_dict"):
-                raise ValueError(f"{type(self.arbitrator).__name__} keeps no statistics, got {sorted(d['arbitrator'])}")
-            self.arbitrator.load_state_dict(d["arbitrator"])
+        restore(self.arbitrator, d.get("arbitrator"))
         if "integrator" in d:
             self.integrator.load_state_dict(d["integrator"])
 

@@ -18,7 +18,7 @@ from apac_mj.config import AgentConfig
 from apac_mj.evaluate import evaluate, load_run
 from apac_mj.trainer import train
 
-from test_trainer import tiny_config
+from test_trainer import tiny_config, train_killed_and_resumed
 
 def same(a: torch.Tensor, b: torch.Tensor) -> bool:
     """Bit-equal, NaN equal to NaN."""
@@ -198,10 +198,6 @@ def test_statistics_are_checkpointed_and_frozen_in_the_tests(tmp_path, agent):
     assert all(same(again[k], state[k]) for k in state)
 
 
-class Crash(Exception):
-    pass
-
-
 @pytest.mark.parametrize("agent,task,extra", [("apac_reliability", "changing_target", {}),
                                               ("apac_speed_accuracy", "changing_target_noisy", {"integrator": "kalman"})])
 def test_resume_with_running_statistics_equals_uninterrupted(tmp_path, agent, task, extra):
@@ -209,17 +205,7 @@ def test_resume_with_running_statistics_equals_uninterrupted(tmp_path, agent, ta
     statistics (arbitrator, Kalman filter) included."""
     cfg_ = tiny_config((0, 1), episodes=6, agent=agent, task=task, **extra)
     full = train(cfg_, tmp_path / "full", progress=False)
-    calls = {"n": 0}
-
-    def crash_after_checkpoint(info, env):
-        if (tmp_path / "cut" / "checkpoints" / "latest.pt").is_file():
-            calls["n"] += 1
-            if calls["n"] == 5:
-                raise Crash()
-
-    with pytest.raises(Crash):
-        train(cfg_, tmp_path / "cut", progress=False, on_step=crash_after_checkpoint)
-    resumed = train(cfg_, tmp_path / "cut", progress=False)
+    resumed = train_killed_and_resumed(cfg_, tmp_path / "cut", 5)
     a, b = pd.read_parquet(full / "metrics.parquet"), pd.read_parquet(resumed / "metrics.parquet")
     pd.testing.assert_frame_equal(a, b, check_exact=True)
     ca, cb = (checkpoint.load(r / "checkpoints" / "latest.pt") for r in (full, resumed))

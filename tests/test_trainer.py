@@ -65,22 +65,28 @@ class Crash(Exception):
     pass
 
 
-def test_resume_equals_uninterrupted(tmp_path):
-    cfg = tiny_config((0, 1), episodes=6)
-    full = train(cfg, tmp_path / "full", progress=False)
+def train_killed_and_resumed(cfg: TrainConfig, run: Path, steps_after_checkpoint: int) -> Path:
+    """Train ``cfg`` into ``run``, kill it ``steps_after_checkpoint`` steps after its first checkpoint
+    (mid-episode for some member), then run the same command again to resume; returns ``run``."""
     calls = {"n": 0}
 
     def crash_after_checkpoint(info, env):
-        # The first checkpoint (slowest member at 2 episodes) is written after some step; crash a few steps later.
-        if (tmp_path / "cut" / "checkpoints" / "latest.pt").is_file():
+        if (run / "checkpoints" / "latest.pt").is_file():
             calls["n"] += 1
-            if calls["n"] == 7:
+            if calls["n"] == steps_after_checkpoint:
                 raise Crash()
 
     with pytest.raises(Crash):
-        train(cfg, tmp_path / "cut", progress=False, on_step=crash_after_checkpoint)
-    assert not (tmp_path / "cut" / "DONE").exists()
-    resumed = train(cfg, tmp_path / "cut", progress=False)
+        train(cfg, run, progress=False, on_step=crash_after_checkpoint)
+    assert not (run / "DONE").exists()
+    return train(cfg, run, progress=False)
+
+
+def test_resume_equals_uninterrupted(tmp_path):
+    cfg = tiny_config((0, 1), episodes=6)
+    full = train(cfg, tmp_path / "full", progress=False)
+    # The first checkpoint (slowest member at 2 episodes) is written after some step; crash a few steps later.
+    resumed = train_killed_and_resumed(cfg, tmp_path / "cut", 7)
     a, b = pd.read_parquet(full / "metrics.parquet"), pd.read_parquet(resumed / "metrics.parquet")
     pd.testing.assert_frame_equal(a, b, check_exact=True)
     wa, wb = final_weights(full), final_weights(resumed)
