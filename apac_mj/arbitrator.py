@@ -242,8 +242,8 @@ class RunningArbitrator:
 class UncertaintyArbitrator(RunningArbitrator):
     """Daw, Niv & Dayan (2005): the system whose prediction is less uncertain acts.
 
-    Habit: ``U_h`` = running mean of delta^2 (the critic's one-step error, reward units = cm), shrunk
-    towards by this episode's own delta^2; planning: ``U_p`` = running mean of the forward model's squared
+    Habit: ``U_h`` = this episode's delta^2 shrunk towards the running mean of delta^2 (the critic's
+    one-step error, reward units = cm); planning: ``U_p`` = running mean of the forward model's squared
     end-effector error (cm^2, the error of its one-step reward prediction, seen steps). Habit iff ``U_h < U_p``.
     """
 
@@ -265,8 +265,9 @@ class ReliabilityArbitrator(RunningArbitrator):
     """Lee, Shimojo & O'Doherty (2014): reliabilities drive a two-state transition between the systems.
 
     Reliability of the habit ``chi_h``: the running rate of ``|delta| < delta_threshold`` (the reward
-    prediction error is small), shrunk towards by this episode's own; of the planner ``chi_p``: the running
-    rate of a forward-model end-effector error below the zone radius (the state prediction error is small).
+    prediction error is small), with this episode's own rate shrunk towards it; of the planner
+    ``chi_p``: the running rate of a forward-model end-effector error below the zone radius (the state
+    prediction error is small).
     The probability of planning control moves as ``P <- P + alpha (1 - P) - beta P`` with
     ``alpha = A / (1 + exp(B chi_h))`` (habit -> planning) and ``beta = A / (1 + exp(B chi_p))``
     (planning -> habit); the habit acts where ``P < 0.5``.
