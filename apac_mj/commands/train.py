@@ -41,7 +41,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--task", default=d.task, help=f"{doc['task']} (see apac-mj tasks; default {d.task})")
     p.add_argument("--agent", choices=kinds.names(), default=kinds.DEFAULT,
                    help="agent kind (apac_mj.kinds): ddpg: always the actor; spac: always the inverse model; "
-                        f"apac: the arbitrator decides; or a registered one (default {kinds.DEFAULT})")
+                        "apac: the paper's arbitrator decides; apac_uncertainty, apac_reliability, "
+                        "apac_speed_accuracy, apac_vision: the rules beyond the paper (docs/arbitrators.md); "
+                        f"or one registered from your code (default {kinds.DEFAULT})")
     p.add_argument("--seeds", default=None,
                    help="seeds: N (the seeds 0..N-1), a range '0-9' (inclusive), a list '0,3,5', one seed k as "
                         "'k-k' (the grammar of grid --set seeds=...; default: seed 0)")
