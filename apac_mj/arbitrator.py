@@ -155,7 +155,9 @@ class DeltaArbitrator:
         signal = ctx.last_delta.abs() if self.delta_rule == "abs" else ctx.last_delta
         reliable = signal.to(ctx.episode.device) < self.delta_threshold
         habit = (ctx.step < self.habit_first_steps) | reliable
-        self.last_inputs = {"delta": ctx.last_delta, "threshold": torch.full((ctx.E,), float(self.delta_threshold))}
+        # what is compared with the threshold, named as it is compared: |delta| (rule "abs") or delta ("signed")
+        self.last_inputs = {"abs_delta" if self.delta_rule == "abs" else "delta": signal.float(),
+                            "threshold": torch.full((ctx.E,), float(self.delta_threshold))}
         return habit & (ctx.episode >= self.planning_episodes)
 
 

@@ -160,7 +160,7 @@ def test_vision_aware_rule_suppresses_or_checks_the_habit_in_the_dark():
     vision = torch.tensor([True, False])
     arb = kinds.arbitrator_for(AgentConfig(agent="apac_vision", planning_episodes=0))
     assert arb.use_habit(ctx(last_delta=0.0, vision=vision)).tolist() == [True, False]
-    assert arb.last_inputs["vision"].tolist() == [1.0, 0.0] and "delta" in arb.last_inputs
+    assert arb.last_inputs["vision"].tolist() == [1.0, 0.0] and "abs_delta" in arb.last_inputs
     check = kinds.arbitrator_for(AgentConfig(agent="apac_vision", planning_episodes=0, vision_aware_dark="check",
                                              vision_check_ratio=0.5))
     state = torch.tensor([[10.0, 0, 0, 0, 0, 0]] * 2)
