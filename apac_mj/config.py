@@ -79,7 +79,7 @@ class AgentConfig:
     #: reward well) or "signed" (delta < 1, Algorithm 2 read literally: "RPE < 1").
     delta_rule: str = "abs"
 
-    # -- arbitrators beyond the paper (apac_mj/arbitrator.py, docs/arbitrators.md) --------
+    # -- arbitrators beyond the paper (apac_mj/agent/arbitration.py, docs/arbitrators.md) --------
     #: Window (transitions) of the running statistics of the uncertainty-, reliability- and
     #: speed-accuracy rules: exponential running means with rate 1 / window.
     arbitration_window: int = 100
@@ -99,7 +99,7 @@ class AgentConfig:
     vision_aware_dark: str = "suppress"
     vision_check_ratio: float = 0.5
 
-    # -- integrator (apac_mj/integrator.py) ------------------------------------
+    # -- integrator (apac_mj/agent/integrator.py) ------------------------------------
     #: "pass_through" (the paper: the seen position if seen, else the forward model's prediction) or
     #: "kalman" (a Kalman filter over the forward model: fuses prediction and noisy observation).
     integrator: str = "pass_through"

@@ -24,8 +24,8 @@ def run_demo(preset: str | Path = "demo", out: str | Path = "results/demo", over
              say: Callable[[str], None] = lambda _: None) -> DemoResult:
     """Run the preset's grid into ``out`` (resuming), write its report, then record ``record_episodes``
     episodes of the first arbitrating kind's main-study cell (0: none)."""
-    from apac_mj import grid
-    from apac_mj.record import record
+    from apac_mj.experiments import grid
+    from apac_mj.recording.record import record
     from apac_mj.report import write_report
 
     if record_episodes < 0:

@@ -9,7 +9,7 @@ kind's name. A new kind is one :func:`register` call from any code, inside the
 package or not (docs/extending.md)::
 
     from apac_mj import kinds
-    from apac_mj.arbitrator import DeltaArbitrator
+    from apac_mj.agent.arbitration import DeltaArbitrator
 
     kinds.register(kinds.AgentKind("apac_strict", "APAC (strict)", "tab:purple",
                                    arbitrator=lambda cfg: DeltaArbitrator(cfg)))
@@ -24,7 +24,7 @@ import dataclasses
 from typing import TYPE_CHECKING, Callable
 
 if TYPE_CHECKING:
-    from apac_mj.arbitrator import Arbitrator
+    from apac_mj.agent.arbitration import Arbitrator
     from apac_mj.config import AgentConfig
 
 
@@ -106,8 +106,8 @@ def names() -> tuple[str, ...]:
 
 def arbitrator_for(cfg: AgentConfig, state: dict | None = None) -> Arbitrator:
     """The arbitrator of ``cfg.agent``'s kind, built from ``cfg``, with the running statistics ``state``
-    (a checkpoint's ``"arbitrator"`` entry) loaded where given (:func:`apac_mj.arbitrator.restore`)."""
-    from apac_mj.arbitrator import restore
+    (a checkpoint's ``"arbitrator"`` entry) loaded where given (:func:`apac_mj.agent.arbitration.restore`)."""
+    from apac_mj.agent.arbitration import restore
 
     arbitrator = get(cfg.agent).arbitrator(cfg)
     restore(arbitrator, state)
@@ -115,10 +115,10 @@ def arbitrator_for(cfg: AgentConfig, state: dict | None = None) -> Arbitrator:
 
 
 def _builtin(name: str) -> Callable[[AgentConfig], Arbitrator]:
-    """A factory of ``apac_mj.arbitrator.<name>``, imported when first used (this module stays torch-free)."""
+    """A factory of ``apac_mj.agent.arbitration.<name>``, imported when first used (this module stays torch-free)."""
 
     def make(cfg: AgentConfig) -> Arbitrator:
-        from apac_mj import arbitrator
+        from apac_mj.agent import arbitration as arbitrator
 
         return getattr(arbitrator, name)(cfg)
 
@@ -140,7 +140,7 @@ def _vision_aware(cfg: AgentConfig) -> Arbitrator:
     naming a vision-aware kind as the base is refused instead of recursing)."""
     import dataclasses
 
-    from apac_mj.arbitrator import VisionAwareArbitrator
+    from apac_mj.agent.arbitration import VisionAwareArbitrator
 
     base_cfg = dataclasses.replace(cfg, vision_aware_base=DEFAULT)
     return VisionAwareArbitrator(cfg, base=get(cfg.vision_aware_base).arbitrator(base_cfg))

@@ -30,7 +30,7 @@ import torch
 import apac_mj  # noqa: F401  (sets MUJOCO_GL)
 from apac_mj.commands.train import agent_overrides
 from apac_mj.config import AgentConfig, TrainConfig
-from apac_mj.trainer import train
+from apac_mj.run.trainer import train
 
 NETS = {"paper": {}, "paper_b64": dict(batch_size=64), "small": dict(actor_hidden=(64, 64), critic_hidden=(64, 64), forward_hidden=(64, 64),
                                    inverse_hidden=(64, 64), batch_size=64)}

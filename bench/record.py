@@ -32,9 +32,10 @@ import numpy as np
 import torch
 
 import apac_mj  # noqa: F401  (sets MUJOCO_GL before mujoco loads)
-from apac_mj import recording as R
-from apac_mj import render, suite
-from apac_mj.agent import Agent
+from apac_mj.recording import recording as R
+from apac_mj.suite import render
+from apac_mj import suite
+from apac_mj.agent.agent import Agent
 from apac_mj.config import AgentConfig
 
 

@@ -1,6 +1,6 @@
 """Where one whole training step goes (act + env step + store + update), per seed.
 
-Runs the real training loop (:func:`apac_mj.trainer.train`) for a few
+Runs the real training loop (:func:`apac_mj.run.trainer.train`) for a few
 episodes with timers wrapped around its parts, and prints, per ensemble size
 and network size, milliseconds per step per seed and each part's share of the
 loop's wall time. The environment's share (``VecEnv.step`` + ``reset``) is
@@ -28,12 +28,12 @@ from typing import Callable, Iterator
 import torch
 
 import apac_mj  # noqa: F401  (sets MUJOCO_GL)
-from apac_mj.agent import Agent
-from apac_mj.buffer import EnsembleReplay
+from apac_mj.agent.agent import Agent
+from apac_mj.agent.replay import EnsembleReplay
 from apac_mj.config import AgentConfig, TrainConfig
-from apac_mj.noise import OUNoise
-from apac_mj.trainer import train
-from apac_mj.vec_env import VecEnv
+from apac_mj.agent.noise import OUNoise
+from apac_mj.run.trainer import train
+from apac_mj.suite.vec_env import VecEnv
 
 PARTS = {
     "act": [(Agent, "actor_action"), (Agent, "inverse_action"), (OUNoise, "sample")],

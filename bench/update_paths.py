@@ -1,6 +1,6 @@
 """One training update per seed: the agent's autograd path against a plain nn.Linear + torch.optim one.
 
-The agent (:class:`apac_mj.agent.Agent`) keeps E members' weights as ``[E, in, out]``
+The agent (:class:`apac_mj.agent.agent.Agent`) keeps E members' weights as ``[E, in, out]``
 tensors, computes the four losses once with batched products and lets autograd
 differentiate them; ``torch.optim.Adam`` steps per-member views. The reference
 here is what one would write with CleanRL at hand: for each member its own
@@ -30,7 +30,7 @@ import time
 import torch
 from torch import nn
 
-from apac_mj.agent import Agent
+from apac_mj.agent.agent import Agent
 from apac_mj.config import AgentConfig
 
 
@@ -96,12 +96,12 @@ class PlainMember:
 
 def rest_of_step(agent: Agent):
     """One training step without the update: arbitrate and act, predict, step the plant, delta, store
-    (the trainer's :class:`apac_mj.rollout.EpisodeLoop` on a real ``VecEnv``)."""
+    (the trainer's :class:`apac_mj.run.rollout.EpisodeLoop` on a real ``VecEnv``)."""
     import numpy as np
 
     from apac_mj.kinds import arbitrator_for
-    from apac_mj.rollout import EpisodeLoop, EpisodeState
-    from apac_mj.vec_env import VecEnv
+    from apac_mj.run.rollout import EpisodeLoop, EpisodeState
+    from apac_mj.suite.vec_env import VecEnv
 
     E = agent.E
     loop = EpisodeLoop(agent, arbitrator_for(agent.cfg), VecEnv("changing_target", list(range(E))))

@@ -6,7 +6,7 @@ import io
 import pytest
 import torch
 
-from apac_mj.agent import LOSSES, NETWORKS, Agent
+from apac_mj.agent.agent import LOSSES, NETWORKS, Agent
 from apac_mj.config import AgentConfig
 
 

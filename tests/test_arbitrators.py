@@ -11,12 +11,13 @@ import pandas as pd
 import pytest
 import torch
 
-from apac_mj import checkpoint, kinds
-from apac_mj.arbitrator import (HABIT_COST, PLANNING_COST, ArbitrationContext, ReliabilityArbitrator,
+from apac_mj.run import checkpoint
+from apac_mj import kinds
+from apac_mj.agent.arbitration import (HABIT_COST, PLANNING_COST, ArbitrationContext, ReliabilityArbitrator,
                                 SpeedAccuracyArbitrator, UncertaintyArbitrator, blend, ema)
 from apac_mj.config import AgentConfig
-from apac_mj.evaluate import evaluate, load_run
-from apac_mj.trainer import train
+from apac_mj.run.evaluate import evaluate, load_run
+from apac_mj.run.trainer import train
 
 from test_trainer import tiny_config, train_killed_and_resumed
 
@@ -224,8 +225,8 @@ def test_a_kind_without_statistics_refuses_a_state():
 def test_recordings_show_which_controller_acted_and_why(tmp_path):
     """The rule's inputs of every decision are series in the recording, one per input, and each step's
     event names the controller and the inputs; the state-estimate error is a series too."""
-    from apac_mj import recording as R
-    from apac_mj.record import record
+    from apac_mj.recording import recording as R
+    from apac_mj.recording.record import record
 
     out = record(tmp_path / "sa.rrd", task="changing_target_noisy", agent="apac_speed_accuracy", episodes=1,
                  progress=False)

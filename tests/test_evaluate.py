@@ -8,10 +8,10 @@ import pandas as pd
 import pytest
 
 from apac_mj.config import AgentConfig, TrainConfig
-from apac_mj.evaluate import COLUMNS, evaluate, evaluation_targets, time_cost
+from apac_mj.run.evaluate import COLUMNS, evaluate, evaluation_targets, time_cost
 from apac_mj.kinematics import angle_grid, motion_function
 from apac_mj.suite import load_spec
-from apac_mj.trainer import train
+from apac_mj.run.trainer import train
 
 
 TINY = dict(actor_hidden=(16, 16), critic_hidden=(16, 16), forward_hidden=(16, 16), inverse_hidden=(16, 16),
@@ -139,7 +139,7 @@ def test_protocol_environments_keep_the_vision_under_test(task, overrides, grid_
     """grid/generalization test the task's noisy or intermittent vision (occluded tasks: perfect); the
     occluded protocol is clean occlusion whatever the task's vision."""
     from apac_mj.config import task_spec
-    from apac_mj.evaluate import _eval_env
+    from apac_mj.run.evaluate import _eval_env
 
     cfg = TrainConfig(task=task, seeds=(0,), task_overrides=overrides)
     spec, lengths = task_spec(cfg), np.array([[5.0, 8.0]])

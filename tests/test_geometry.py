@@ -5,11 +5,11 @@ import numpy as np
 import pytest
 import torch
 
-from apac_mj.agent import Agent
+from apac_mj.agent.agent import Agent
 from apac_mj.config import AgentConfig, TrainConfig, task_spec
 from apac_mj.kinematics import Geometry
 from apac_mj.suite.task_spec import TaskSpecError
-from apac_mj.vec_env import VecEnv
+from apac_mj.suite.vec_env import VecEnv
 
 #: A task whose shoulder is off-centre and whose joints have another range than the paper's [0, 180].
 ELSEWHERE = {"origin": (10.0, 12.0), "joint_range": (-30.0, 200.0)}

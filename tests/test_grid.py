@@ -14,7 +14,8 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from apac_mj import grid, report
+from apac_mj.experiments import grid
+from apac_mj import report
 from apac_mj.cli import main
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -73,7 +74,7 @@ def test_bad_overrides_name_the_problem(override: str, message: str) -> None:
 
 
 def test_unknown_preset_lists_known_ones(tmp_path: Path) -> None:
-    from apac_mj import paths
+    from apac_mj.util import paths
 
     known = ", ".join(sorted(p.stem for p in (paths.tasks_dir() / "presets").glob("*.toml")))
     assert {"demo", "fidelity", "paper", "quick", "smoke", "arbitrators"} <= set(known.split(", "))
@@ -142,8 +143,8 @@ def test_atomic_write_leaves_no_temporary_files(tmp_path: Path) -> None:
 @pytest.fixture
 def stack() -> None:
     """Skip the grid runs until the trainer and the evaluation exist."""
-    pytest.importorskip("apac_mj.trainer", reason="the trainer has not landed yet")
-    pytest.importorskip("apac_mj.evaluate", reason="the evaluation has not landed yet")
+    pytest.importorskip("apac_mj.run.trainer", reason="the trainer has not landed yet")
+    pytest.importorskip("apac_mj.run.evaluate", reason="the evaluation has not landed yet")
 
 TINY = ["seeds=2", "episodes=4", "checkpoint_every=1", "conditions=changing_target", "agents=apac",
         "tests.generalization=false"]

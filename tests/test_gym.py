@@ -1,4 +1,4 @@
-"""apac_mj.gym: every suite task as a registered gymnasium.Env that passes Gymnasium's own checker."""
+"""apac_mj.suite.gym: every suite task as a registered gymnasium.Env that passes Gymnasium's own checker."""
 from __future__ import annotations
 
 import numpy as np
@@ -6,7 +6,7 @@ import pytest
 
 gymnasium = pytest.importorskip("gymnasium")
 
-import apac_mj.gym as apac_gym  # noqa: E402
+import apac_mj.suite.gym as apac_gym  # noqa: E402
 from apac_mj import suite  # noqa: E402
 
 

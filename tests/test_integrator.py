@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from apac_mj.integrator import KalmanIntegrator, PassThrough, integrate
+from apac_mj.agent.integrator import KalmanIntegrator, PassThrough, integrate
 
 ALL = np.ones
 

@@ -9,8 +9,9 @@ import pandas as pd
 import pytest
 import torch
 
-from apac_mj import grid, kinds, report
-from apac_mj.arbitrator import HISTORY, ArbitrationContext
+from apac_mj.experiments import grid
+from apac_mj import kinds, report
+from apac_mj.agent.arbitration import HISTORY, ArbitrationContext
 from apac_mj.config import AgentConfig
 
 PACKAGE = Path(__file__).resolve().parents[1] / "apac_mj"
@@ -104,7 +105,7 @@ def test_registry_refuses_bad_kinds():
 
 
 def test_use_habit_must_return_one_bool_per_member():
-    from apac_mj.rollout import select_action
+    from apac_mj.run.rollout import select_action
 
     class Wrong:
         def use_habit(self, ctx):

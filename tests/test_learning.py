@@ -28,7 +28,7 @@ import pandas as pd
 import pytest
 
 from apac_mj.config import AgentConfig, TrainConfig
-from apac_mj.trainer import train
+from apac_mj.run.trainer import train
 
 
 #: The planning checks run with a constant 2-degree OU sigma: the default anneals from 18 degrees over 150

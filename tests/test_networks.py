@@ -7,14 +7,14 @@ import numpy as np
 import pytest
 import torch
 
-from apac_mj.agent import _member_adam, member_generators
-from apac_mj.arbitrator import ArbitrationContext
+from apac_mj.agent.agent import _member_adam, member_generators
+from apac_mj.agent.arbitration import ArbitrationContext
 from apac_mj.kinds import arbitrator_for
-from apac_mj.buffer import EnsembleReplay
+from apac_mj.agent.replay import EnsembleReplay
 from apac_mj.config import AgentConfig
-from apac_mj.integrator import integrate
-from apac_mj.networks import EnsembleLinear, build_actor, build_critic
-from apac_mj.noise import OUNoise
+from apac_mj.agent.integrator import integrate
+from apac_mj.agent.networks import EnsembleLinear, build_actor, build_critic
+from apac_mj.agent.noise import OUNoise
 
 
 def gens(seeds, which=0):

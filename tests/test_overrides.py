@@ -7,12 +7,13 @@ import dataclasses
 
 import pytest
 
-from apac_mj import grid, overrides
+from apac_mj.experiments import grid
+from apac_mj.util import overrides
 from apac_mj.cli import build_parser, main
 from apac_mj.commands import train as train_cmd
 from apac_mj.config import AgentConfig, TrainConfig
-from apac_mj.presets import Preset
-from apac_mj.presets import Tests as PresetTests
+from apac_mj.experiments.presets import Preset
+from apac_mj.experiments.presets import Tests as PresetTests
 
 
 def _train_args(*sets: str, seeds: str | None = None) -> argparse.Namespace:

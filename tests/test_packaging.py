@@ -1,4 +1,4 @@
-"""The built wheel ships the MJCF model and the task files, and apac_mj.paths finds them."""
+"""The built wheel ships the MJCF model and the task files, and apac_mj.util.paths finds them."""
 import os
 import shutil
 import subprocess
@@ -43,7 +43,7 @@ def test_wheel_contains_model_and_task_files(wheel):
 def test_installed_paths_find_the_data(wheel, tmp_path):
     site = tmp_path / "site"
     zipfile.ZipFile(wheel).extractall(site)
-    code = ("import apac_mj.paths as p, apac_mj.suite as s; "
+    code = ("import apac_mj.util.paths as p, apac_mj.suite as s; "
             "print(p.arm_xml_path()); print(p.tasks_dir()); print(len(s.ALL_TASKS))")
     env = {**os.environ, "PYTHONPATH": str(site)}
     out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True,

@@ -8,8 +8,8 @@ import pandas as pd
 import pytest
 import torch
 
-from apac_mj import grid
-from apac_mj.executors import LocalExecutor, RayExecutor, make_executor
+from apac_mj.experiments import grid
+from apac_mj.experiments.executors import LocalExecutor, RayExecutor, make_executor
 
 pytestmark = pytest.mark.ray
 
@@ -33,8 +33,8 @@ def _cells(results: Path) -> dict:
 
 def test_ray_grid_equals_local_grid(tmp_path: Path) -> None:
     ray = pytest.importorskip("ray", reason="the optional Ray extra is not installed (pip install 'apac_mj[ray]')")
-    pytest.importorskip("apac_mj.trainer", reason="the trainer has not landed yet")
-    pytest.importorskip("apac_mj.evaluate", reason="the evaluation has not landed yet")
+    pytest.importorskip("apac_mj.run.trainer", reason="the trainer has not landed yet")
+    pytest.importorskip("apac_mj.run.evaluate", reason="the evaluation has not landed yet")
     preset = grid.load_preset("smoke", TINY)
     threads = torch.get_num_threads()
     try:

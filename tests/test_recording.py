@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 
 import apac_mj  # noqa: F401  (sets MUJOCO_GL before mujoco loads)
-from apac_mj import recording as R
-from apac_mj import render, suite
+from apac_mj.recording import recording as R
+from apac_mj.suite import render
+from apac_mj import suite
 
 
 def _record_plain_rollout(path: Path, task: str, episodes: int, seed: int = 0, **task_kwargs) -> dict:
@@ -168,7 +169,7 @@ def tiny_run(tmp_path_factory) -> tuple[Path, dict[int, list[bool]]]:
     """A 2-seed APAC run with small networks, recording every 2nd episode; what seed 0's agent reported."""
     import torch
 
-    from apac_mj.trainer import train
+    from apac_mj.run.trainer import train
 
     torch.set_num_threads(1)
     reported: dict[int, list[bool]] = {}

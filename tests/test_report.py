@@ -14,7 +14,8 @@ import pandas as pd
 import pytest
 from scipy import stats
 
-from apac_mj import grid, report
+from apac_mj.experiments import grid
+from apac_mj import report
 from apac_mj.cli import main
 
 FIGURES = ["fig3_training_success.png", "fig4_test.png", "fig5_arbitration.png", "fig6_steps_time.png",

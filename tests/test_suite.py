@@ -32,7 +32,7 @@ for _task in TASKS:
 def test_all_tasks_listed():
     """Every file in tasks/ is a task; the paper's conditions are there with their occluded and train-region
     variants (the grid's suffix convention). Properties, not a count: adding a task file keeps this green."""
-    from apac_mj.presets import CONDITIONS
+    from apac_mj.experiments.presets import CONDITIONS
     from apac_mj.suite.task_spec import task_names
 
     assert sorted(TASKS) == task_names() and len(set(TASKS)) == len(TASKS)
@@ -46,7 +46,7 @@ def test_task_files_state_only_what_differs_from_the_defaults(task):
     import dataclasses
     import tomllib
 
-    from apac_mj import paths
+    from apac_mj.util import paths
     from apac_mj.suite.task_spec import TaskSpec, load_task
 
     spec, default = load_task(task), TaskSpec(name=task)

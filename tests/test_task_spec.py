@@ -1,7 +1,7 @@
 """Task files: every shipped file is valid, and malformed files fail naming the problem."""
 import pytest
 
-from apac_mj import paths
+from apac_mj.util import paths
 from apac_mj.suite.task_spec import Region, TaskSpec, TaskSpecError, load_task, load_task_file, task_names
 
 GOOD = """\

@@ -9,9 +9,9 @@ import pandas as pd
 import pytest
 import torch
 
-from apac_mj import checkpoint
+from apac_mj.run import checkpoint
 from apac_mj.config import AgentConfig, TrainConfig
-from apac_mj.trainer import METRIC_COLUMNS, train
+from apac_mj.run.trainer import METRIC_COLUMNS, train
 
 
 TINY = dict(actor_hidden=(16, 16), critic_hidden=(16, 16), forward_hidden=(16, 16), inverse_hidden=(16, 16),
@@ -190,7 +190,7 @@ def test_checkpoint_with_code_is_refused(tmp_path, capsys):
 def test_vec_env_state_roundtrip_mid_episode(task, actuation):
     import io
 
-    from apac_mj.vec_env import VecEnv
+    from apac_mj.suite.vec_env import VecEnv
 
     def make():
         return VecEnv(task, [0, 1], actuation, overrides={"growth_start_episode": 0})
@@ -221,7 +221,7 @@ def test_vec_env_state_roundtrip_mid_episode(task, actuation):
 
 def test_episode_losses_are_the_mean_of_the_updates(tmp_path, monkeypatch):
     """The *_loss columns hold the mean of the losses Agent.update returned during that episode."""
-    from apac_mj import agent as agent_mod
+    from apac_mj.agent import agent as agent_mod
 
     seen: list[dict[str, np.ndarray]] = []
     original = agent_mod.Agent.update
@@ -297,7 +297,7 @@ def test_failed_start_leaves_nothing_behind(tmp_path):
 
 
 def test_bad_agent_config_writes_no_config(tmp_path, monkeypatch):
-    from apac_mj import trainer
+    from apac_mj.run import trainer
 
     def broken(*a, **k):
         raise RuntimeError("agent construction failed")
@@ -333,7 +333,7 @@ def test_extending_a_finished_run_equals_a_longer_run(tmp_path, capsys):
 def test_damaged_latest_falls_back_to_previous(tmp_path, capsys):
     """A truncated latest.pt of a finished run: train warns, resumes from previous.pt and ends where it
     ended; evaluate warns and uses previous.pt."""
-    from apac_mj.evaluate import evaluate
+    from apac_mj.run.evaluate import evaluate
 
     cfg = tiny_config((0, 1), episodes=4)
     run = train(cfg, tmp_path / "run", progress=False)

@@ -12,9 +12,9 @@ from __future__ import annotations
 import pytest
 import torch
 
-from apac_mj.agent import NETWORKS, TRAINED, Agent
+from apac_mj.agent.agent import NETWORKS, TRAINED, Agent
 from apac_mj.config import AgentConfig
-from apac_mj.networks import EnsembleCritic
+from apac_mj.agent.networks import EnsembleCritic
 
 SMALL = dict(actor_hidden=(24, 16), critic_hidden=(24, 16), forward_hidden=(24, 16),
              inverse_hidden=(24, 16), replay_size=16, batch_size=8)

@@ -39,7 +39,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from apac_mj.evaluate import evaluate
+    from apac_mj.run.evaluate import evaluate
 
     protocols = tuple(p.strip() for p in args.protocols.split(",") if p.strip())
     summary = evaluate(args.run_dir, protocols=protocols, region=args.region, device=args.device,

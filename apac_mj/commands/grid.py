@@ -20,8 +20,8 @@ all else the same) extends finished cells and tests them again; any other change
 def fields_help() -> str:
     """Every key a preset (and --set) takes, with its doc: preset, [tests], run and [agent] fields."""
     from apac_mj.config import AgentConfig, TrainConfig
-    from apac_mj.overrides import field_help
-    from apac_mj.presets import Preset, Tests
+    from apac_mj.util.overrides import field_help
+    from apac_mj.experiments.presets import Preset, Tests
 
     return ("Preset fields:\n" + field_help(Preset, skip=("name", "run", "agent", "tests"))
             + "\n\n[tests] fields (tests.NAME=VALUE):\n" + field_help(Tests, prefix="tests.")
@@ -32,7 +32,7 @@ def fields_help() -> str:
 
 
 def _preset_names() -> list[str]:
-    from apac_mj import paths
+    from apac_mj.util import paths
 
     return sorted(p.stem for p in (paths.tasks_dir() / "presets").glob("*.toml"))
 
@@ -65,8 +65,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from apac_mj import grid
-    from apac_mj.executors import make_executor
+    from apac_mj.experiments import grid
+    from apac_mj.experiments.executors import make_executor
 
     preset = grid.load_preset(args.preset, args.overrides)
     out = Path(args.out or f"results/{preset.name}")

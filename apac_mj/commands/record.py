@@ -52,7 +52,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     import torch
 
-    from apac_mj.record import record
+    from apac_mj.recording.record import record
 
     torch.set_num_threads(min(torch.get_num_threads(), 2))
     r = record(args.out, run=args.run, task=args.task, agent=args.agent, seed=args.seed, member=args.member,

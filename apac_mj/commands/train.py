@@ -26,7 +26,7 @@ warning, to checkpoints/previous.pt. Everything is checked before the directory 
 def register(sub: argparse._SubParsersAction) -> None:
     from apac_mj import kinds
     from apac_mj.config import AgentConfig, TrainConfig
-    from apac_mj.overrides import field_docs, field_help
+    from apac_mj.util.overrides import field_docs, field_help
 
     d, doc = TrainConfig(), field_docs(TrainConfig)
     p = sub.add_parser("train", help="train an ensemble of seeds on a task (resumable run directory)",
@@ -57,7 +57,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--actuation", choices=("servo", "kinematic"), default=d.actuation,
                    help="servo: MuJoCo position servos (default); kinematic: joint angles written exactly")
     p.add_argument("--record-every", type=int, default=None, metavar="N",
-                   help="record every N-th episode to RUN_DIR/recordings/*.rrd (Rerun; apac_mj.recording)")
+                   help="record every N-th episode to RUN_DIR/recordings/*.rrd (Rerun; apac_mj.recording.recording)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="set a TrainConfig or AgentConfig field (listed below), repeatable: batch_size=128, "
                         "ou_sigma=5, actor_hidden=64,64, agent.babbling_episodes=20, task_overrides={at_limit=\"unbounded\"}")
@@ -69,16 +69,16 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def parse_seeds(text: str) -> tuple[int, ...]:
-    """The one seed grammar (apac_mj.overrides.parse_seeds): '4' -> 0..3, '0-9' -> 0..9, '0,3,5', '7-7' -> (7,)."""
-    from apac_mj.overrides import parse_seeds as parse
+    """The one seed grammar (apac_mj.util.overrides.parse_seeds): '4' -> 0..3, '0-9' -> 0..9, '0,3,5', '7-7' -> (7,)."""
+    from apac_mj.util.overrides import parse_seeds as parse
 
     return parse(text, "--seeds")
 
 
 def agent_overrides(items: list[str]) -> dict:
     """``KEY=VALUE`` strings (``NAME`` or ``agent.NAME``) -> AgentConfig keyword arguments, in the one
-    --set grammar (apac_mj.overrides): typed by the field, an unknown name or a bad value refused."""
-    from apac_mj import overrides
+    --set grammar (apac_mj.util.overrides): typed by the field, an unknown name or a bad value refused."""
+    from apac_mj.util import overrides
     from apac_mj.config import AgentConfig
 
     fields = {f.name for f in dataclasses.fields(AgentConfig)} - {"agent"}
@@ -91,7 +91,7 @@ def agent_overrides(items: list[str]) -> dict:
 
 def train_config(args: argparse.Namespace):
     """The run's TrainConfig: the flags, then every --set (one grammar, typed and checked here)."""
-    from apac_mj import overrides
+    from apac_mj.util import overrides
     from apac_mj.config import AgentConfig, TrainConfig
 
     data = {"task": args.task, "episodes": args.episodes, "device": args.device, "precision": args.precision,
@@ -110,7 +110,7 @@ def train_config(args: argparse.Namespace):
 def run(args: argparse.Namespace) -> int:
     import torch
 
-    from apac_mj.trainer import metric_rows, run_summary, train
+    from apac_mj.run.trainer import metric_rows, run_summary, train
 
     if args.threads < 1:
         raise ValueError(f"--threads must be >= 1, got {args.threads}")

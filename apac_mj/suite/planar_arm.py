@@ -16,7 +16,7 @@ from dm_control.rl import control
 from dm_control.suite import base
 from dm_env import specs
 
-from apac_mj import paths
+from apac_mj.util import paths
 from apac_mj.kinematics import motion_function
 from apac_mj.suite.task_spec import START_ANGLES, TaskSpec
 

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 from typing import Any
 
-from apac_mj import paths
+from apac_mj.util import paths
 
 
 #: The arm's (shoulder, elbow) angles at every episode's start (degrees): stretched along the x axis, folded back.

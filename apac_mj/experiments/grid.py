@@ -27,11 +27,11 @@ from typing import Any
 
 from apac_mj import kinds
 from apac_mj.config import TrainConfig, to_dict, train_config_from_dict
-from apac_mj.executors import LocalExecutor
-from apac_mj.files import atomic_write_text, jsonable as _jsonable, read_json
-from apac_mj.presets import (CONDITIONS, TRAIN_REGION_SUFFIX, Preset, PresetError, Tests,  # noqa: F401
+from apac_mj.experiments.executors import LocalExecutor
+from apac_mj.util.files import atomic_write_text, jsonable as _jsonable, read_json
+from apac_mj.experiments.presets import (CONDITIONS, TRAIN_REGION_SUFFIX, Preset, PresetError, Tests,  # noqa: F401
                              load_preset, parse_override, parse_seeds, preset_from_dict, preset_names, preset_path)
-from apac_mj.results import CELL_FILE, MANIFEST, cell_dirs, load_results, load_tests  # noqa: F401
+from apac_mj.experiments.results import CELL_FILE, MANIFEST, cell_dirs, load_results, load_tests  # noqa: F401
 
 
 
@@ -132,7 +132,7 @@ def prepare_cell(cell: Cell, preset: Preset, results: Path) -> Path:
 
 def check_grid(preset: Preset, results: Path) -> dict[str, tuple[str, str]]:
     """Every cell's status; raises ValueError naming every refused cell or invalid run (nothing is written)."""
-    from apac_mj.trainer import validate
+    from apac_mj.run.trainer import validate
 
     for c in cells(preset):
         validate(c.train_config(preset))  # devices, seeds, the task and its overrides: before anything runs
@@ -165,7 +165,7 @@ def run_cell(cell_dir: str | Path, progress: bool = True, threads: int = 1) -> d
         raise FileNotFoundError(f"{cell_dir / CELL_FILE} missing: prepare the cell first")
     start = time.perf_counter()
     if not cell_done(cell_dir):
-        from apac_mj.trainer import train
+        from apac_mj.run.trainer import train
 
         train(train_config_from_dict(info["train_config"]), cell_dir, progress=progress)
         if info["protocols"]:
@@ -174,7 +174,7 @@ def run_cell(cell_dir: str | Path, progress: bool = True, threads: int = 1) -> d
 
 
 def _evaluate(cell_dir: Path, protocols: tuple[str, ...], limit: int) -> None:
-    from apac_mj.evaluate import evaluate
+    from apac_mj.run.evaluate import evaluate
 
     evaluate(cell_dir, protocols=protocols, limit=limit or None)
 

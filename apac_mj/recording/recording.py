@@ -24,7 +24,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from apac_mj.kinematics import DEFAULT_ORIGIN, motion_function
-from apac_mj.render import Renderer, encode_jpeg
+from apac_mj.suite.render import Renderer, encode_jpeg
 
 APPLICATION_ID = "apac_mj"
 
@@ -108,7 +108,7 @@ class StepRecord:
 
     @classmethod
     def from_step_info(cls, info: Any, member: int) -> "StepRecord":
-        """The record of ``member`` from a member-batched ``apac_mj.rollout.StepInfo``."""
+        """The record of ``member`` from a member-batched ``apac_mj.run.rollout.StepInfo``."""
         def at(name: str) -> Any:
             return np.asarray(getattr(info, name))[member]
 
@@ -509,8 +509,8 @@ class EpisodeRecorder:
     """Records every ``record_every``-th episode of one member through the rollout hooks.
 
     Pass :meth:`on_episode_start` and :meth:`on_step` as the hooks of
-    :func:`apac_mj.trainer.train` (``record_every=N`` does it) or of a rollout
-    loop built on :func:`apac_mj.rollout.agent_step`. Only recorded episodes
+    :func:`apac_mj.run.trainer.train` (``record_every=N`` does it) or of a rollout
+    loop built on :func:`apac_mj.run.rollout.agent_step`. Only recorded episodes
     are rendered. Episode ``e`` counts training episodes (babbling negative):
     the member's reset count minus ``config["agent"]["babbling_episodes"]``.
 

@@ -4,7 +4,7 @@ An arbitrator implements one method, ``use_habit(ctx) -> [E] bool``, over an
 :class:`ArbitrationContext`: everything a rule may look at for each member at
 this step (episode, step, the last and the recent TD errors, vision, the
 forward model's recent error, the agent's uncertainty estimates where it has
-them). The episode loop (:mod:`apac_mj.rollout`) builds the context; a new rule
+them). The episode loop (:mod:`apac_mj.run.rollout`) builds the context; a new rule
 is a new class, registered with an agent kind (:mod:`apac_mj.kinds`).
 
 The built-in rules (the kinds ``ddpg``, ``spac`` and ``apac``):
@@ -179,7 +179,7 @@ def blend(prior: torch.Tensor, samples: torch.Tensor, weight: float) -> torch.Te
 
 
 def step_signals(info: Any) -> dict[str, torch.Tensor]:
-    """What the running statistics learn from one :class:`~apac_mj.rollout.StepInfo` (``[E]`` each):
+    """What the running statistics learn from one :class:`~apac_mj.run.rollout.StepInfo` (``[E]`` each):
     the TD error, the forward model's end-effector error where the arm was seen (NaN elsewhere), the
     estimated distance to the target before and after the step, the step's time cost, the controller."""
     state, nxt = torch.as_tensor(info.state), torch.as_tensor(info.next_state)

@@ -1,6 +1,6 @@
 """A grid's results directory read back: every cell's metrics and test results as one table each.
 
-Layout (written by :mod:`apac_mj.grid`): ``RESULTS/manifest.json`` and one run
+Layout (written by :mod:`apac_mj.experiments.grid`): ``RESULTS/manifest.json`` and one run
 directory per cell holding ``cell.json`` (the cell's agent kind, condition and
 region), ``metrics.parquet`` and ``eval/<protocol>.parquet``.
 """
@@ -11,7 +11,7 @@ from typing import Any
 
 import pandas as pd
 
-from apac_mj.files import read_json
+from apac_mj.util.files import read_json
 
 CELL_FILE = "cell.json"
 MANIFEST = "manifest.json"

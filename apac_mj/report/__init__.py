@@ -29,9 +29,9 @@ import pandas as pd  # noqa: E402
 from scipy import stats  # noqa: E402
 
 from apac_mj import kinds  # noqa: E402
-from apac_mj.files import read_json  # noqa: E402
-from apac_mj.presets import CONDITIONS  # noqa: E402
-from apac_mj.results import MANIFEST, load_results, load_tests  # noqa: E402
+from apac_mj.util.files import read_json  # noqa: E402
+from apac_mj.experiments.presets import CONDITIONS  # noqa: E402
+from apac_mj.experiments.results import MANIFEST, load_results, load_tests  # noqa: E402
 
 
 
@@ -772,9 +772,9 @@ class ReportData:
     """What a figure is drawn from: the results directory and its tables (:func:`write_report` builds it)."""
 
     results: Path
-    #: Every cell's metrics.parquet (apac_mj.results.load_results).
+    #: Every cell's metrics.parquet (apac_mj.experiments.results.load_results).
     metrics: pd.DataFrame
-    #: Every cell's eval/<protocol>.parquet (apac_mj.results.load_tests).
+    #: Every cell's eval/<protocol>.parquet (apac_mj.experiments.results.load_tests).
     tests: pd.DataFrame
     #: One row per (quantity, agent, condition, seed) (:func:`per_seed`).
     seed_values: pd.DataFrame

@@ -1,12 +1,12 @@
 """Presets: the experiment grid's configuration (``tasks/presets/*.toml``), read and validated here.
 
 A preset names the agent kinds, training conditions and tests of a grid
-(:mod:`apac_mj.grid` expands it into cells) and embeds the run configuration
+(:mod:`apac_mj.experiments.grid` expands it into cells) and embeds the run configuration
 every cell trains with: its top-level ``seeds``, ``episodes``,
 ``checkpoint_every``, ``device``, ``precision``, ``actuation`` and its
 ``[agent]`` table are :class:`~apac_mj.config.TrainConfig` and
 :class:`~apac_mj.config.AgentConfig` fields, documented there. Files and
-``--set`` overrides share one grammar (:mod:`apac_mj.overrides`); every key
+``--set`` overrides share one grammar (:mod:`apac_mj.util.overrides`); every key
 and value is checked when the preset is read, before anything runs, and a bad
 one raises :class:`PresetError` naming it.
 """
@@ -19,7 +19,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from apac_mj import kinds, overrides, paths
+from apac_mj import kinds
+from apac_mj.util import overrides, paths
 from apac_mj.config import AgentConfig, TrainConfig
 
 #: The paper's four training conditions (task files in tasks/).
@@ -145,7 +146,7 @@ def top_level_keys() -> set[str]:
 
 
 def load_preset(name_or_path: str | Path, overrides_: Sequence[str] = ()) -> Preset:
-    """Read a preset file and apply ``key=value`` overrides (the grammar of :mod:`apac_mj.overrides`:
+    """Read a preset file and apply ``key=value`` overrides (the grammar of :mod:`apac_mj.util.overrides`:
     dotted keys for tables, ``agent.batch_size=64``; a bare AgentConfig field name means ``agent.NAME``)."""
     path = preset_path(name_or_path)
     try:
@@ -160,7 +161,7 @@ def load_preset(name_or_path: str | Path, overrides_: Sequence[str] = ()) -> Pre
 
 
 def parse_override(item: str) -> tuple[str, Any]:
-    """``"episodes=50"`` -> ("episodes", 50) (:func:`apac_mj.overrides.parse_set`)."""
+    """``"episodes=50"`` -> ("episodes", 50) (:func:`apac_mj.util.overrides.parse_set`)."""
     try:
         return overrides.parse_set(item)
     except overrides.OverrideError as e:
@@ -231,7 +232,7 @@ def _run(data: dict[str, Any], agent: dict[str, Any], name: str) -> TrainConfig:
 
 
 def parse_seeds(value: Any, name: str = "<dict>") -> tuple[int, ...]:
-    """Seeds in the one seed grammar (:func:`apac_mj.overrides.parse_seeds`); errors name the preset."""
+    """Seeds in the one seed grammar (:func:`apac_mj.util.overrides.parse_seeds`); errors name the preset."""
     try:
         return overrides.parse_seeds(value)
     except overrides.OverrideError as e:

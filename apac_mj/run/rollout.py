@@ -3,7 +3,7 @@
 :class:`EpisodeLoop` is the one place that carries per-member state between
 steps (:class:`EpisodeState`: the state estimate, step, TD errors, vision,
 forward-model error, counts) and builds the arbitrator's
-:class:`~apac_mj.arbitrator.ArbitrationContext` from it; the arbitrator's
+:class:`~apac_mj.agent.arbitration.ArbitrationContext` from it; the arbitrator's
 choice between the actor and the inverse model (plus OU noise) is
 :func:`select_action`. :func:`agent_step` is the body of Algorithm 2's inner
 loop up to the store: feed the action and the current arm estimate to the forward model, step the plant,
@@ -17,7 +17,7 @@ critic and the forward model learn from)
     on_step(info: StepInfo, vec_env: VecEnv) -> None
     on_episode_start(members: np.ndarray, vec_env: VecEnv) -> None   # members: [E] bool, just reset
 
-Both hooks are accepted by :func:`apac_mj.trainer.train`, :func:`apac_mj.evaluate.evaluate`
+Both hooks are accepted by :func:`apac_mj.run.trainer.train`, :func:`apac_mj.run.evaluate.evaluate`
 and the loop itself.
 
 What the agent perceives: with vision, the environment's reward and
@@ -33,10 +33,10 @@ from typing import Any, Callable, Iterator
 import numpy as np
 import torch
 
-from apac_mj.arbitrator import HISTORY, ArbitrationContext, Arbitrator, push_delta, restore
-from apac_mj import integrator as integrators
+from apac_mj.agent.arbitration import HISTORY, ArbitrationContext, Arbitrator, push_delta, restore
+from apac_mj.agent import integrator as integrators
 from apac_mj.suite.planar_arm import ACTION_BOUND
-from apac_mj.vec_env import Observation, VecEnv
+from apac_mj.suite.vec_env import Observation, VecEnv
 
 
 @dataclasses.dataclass
@@ -213,7 +213,7 @@ class EpisodeLoop:
         #: The arbitrator's and the integrator's running statistics learn from the steps (training);
         #: False: frozen (tests).
         self.adapt = adapt
-        #: The state estimate (apac_mj.integrator): default ``agent.cfg.integrator`` with the task's noise.
+        #: The state estimate (apac_mj.agent.integrator): default ``agent.cfg.integrator`` with the task's noise.
         self.integrator = integrator if integrator is not None else integrators.build(
             agent.cfg, env.E, env.spec.observation_noise_std, agent.device)
         if hasattr(self.integrator, "adapt"):

@@ -3,7 +3,7 @@
 ``--set KEY=VALUE`` (``apac-mj train``, ``grid``, ``demo``) and preset files set
 fields of the run's configuration (:class:`~apac_mj.config.TrainConfig` and its
 ``agent``, :class:`~apac_mj.config.AgentConfig`); a grid also has preset fields
-(:class:`~apac_mj.presets.Preset`).
+(:class:`~apac_mj.experiments.presets.Preset`).
 
 * ``KEY`` is a field name; ``agent.NAME`` names an AgentConfig field, and a bare
   AgentConfig field name (``batch_size=64``) means the same.

@@ -36,16 +36,16 @@ import pandas as pd
 import torch
 from tqdm.auto import tqdm
 
-from apac_mj import checkpoint
-from apac_mj.agent import Agent
-from apac_mj.arbitrator import HABIT_COST, PLANNING_COST  # the time cost of one action (re-exported here)
+from apac_mj.run import checkpoint
+from apac_mj.agent.agent import Agent
+from apac_mj.agent.arbitration import HABIT_COST, PLANNING_COST  # the time cost of one action (re-exported here)
 from apac_mj.config import TrainConfig, task_spec, train_config_from_dict
-from apac_mj.files import atomic_write_parquet
+from apac_mj.util.files import atomic_write_parquet
 from apac_mj.kinematics import Geometry, angle_grid, motion_function
 from apac_mj.kinds import arbitrator_for, get as get_kind
-from apac_mj.rollout import EpisodeLoop, OnEpisodeStart, OnStep, running_statistics
+from apac_mj.run.rollout import EpisodeLoop, OnEpisodeStart, OnStep, running_statistics
 from apac_mj.suite.task_spec import TaskSpec
-from apac_mj.vec_env import VecEnv
+from apac_mj.suite.vec_env import VecEnv
 
 PROTOCOLS = ("grid", "occluded", "generalization")
 #: Environment zone radius in the occluded protocol: its reach test never fires.
@@ -65,7 +65,7 @@ def load_run(run_dir: Path, device: str | None = None) -> tuple[TrainConfig, Age
     cfg = train_config_from_dict(d)
     if device is not None:
         cfg.device = device
-    from apac_mj.trainer import check_device
+    from apac_mj.run.trainer import check_device
 
     check_device(cfg.device)  # a missing GPU: a clear error before anything is loaded
     ckpt = checkpoint.load_run_checkpoint(run_dir, required=("agent", "env"), warn=warn_user)
@@ -77,7 +77,7 @@ def load_run(run_dir: Path, device: str | None = None) -> tuple[TrainConfig, Age
 
 def not_a_run_dir(path: Path, command: str) -> str:
     """Why ``path`` is not a run directory; for a grid's results directory, its cells to choose from."""
-    from apac_mj.results import CELL_FILE
+    from apac_mj.experiments.results import CELL_FILE
 
     path = Path(path)
     if not path.is_dir():
@@ -190,7 +190,7 @@ def run_protocol(cfg: TrainConfig, agent: Agent, spec: TaskSpec, lengths: np.nda
     """Episode ``i`` of every member goes to its ``targets[k][i]``; all members side by side.
 
     The arbitrator and the integrator start from ``running`` (the checkpoint's running statistics,
-    :func:`apac_mj.rollout.running_statistics`) and keep them frozen, like the networks."""
+    :func:`apac_mj.run.rollout.running_statistics`) and keep them frozen, like the networks."""
     env = _eval_env(cfg, spec, lengths, occluded)
     episodes = EpisodeLoop(agent, arbitrator_for(cfg.agent), env, zone_radius=spec.zone_radius,
                            on_step=on_step, on_episode_start=on_episode_start, adapt=False)

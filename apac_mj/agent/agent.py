@@ -26,11 +26,11 @@ import torch
 from torch import nn
 
 from apac_mj import kinds
-from apac_mj.buffer import EnsembleReplay
+from apac_mj.agent.replay import EnsembleReplay
 from apac_mj.config import AgentConfig
 from apac_mj.kinematics import Geometry
-from apac_mj.networks import build_actor, build_critic, build_forward_model, build_inverse_model
-from apac_mj.noise import OUNoise
+from apac_mj.agent.networks import build_actor, build_critic, build_forward_model, build_inverse_model
+from apac_mj.agent.noise import OUNoise
 
 PRECISIONS = ("fp32", "bf16")
 NETWORKS = ("actor", "critic", "forward_model", "inverse_model", "target_actor", "target_critic")

@@ -1,7 +1,7 @@
-"""Gymnasium environments: ``import apac_mj.gym`` registers every task as ``apac_mj/<task>-v0``.
+"""Gymnasium environments: ``import apac_mj.suite.gym`` registers every task as ``apac_mj/<task>-v0``.
 
     import gymnasium as gym
-    import apac_mj.gym  # noqa: F401  (registers the tasks)
+    import apac_mj.suite.gym  # noqa: F401  (registers the tasks)
 
     env = gym.make("apac_mj/changing_target-v0")
     obs, info = env.reset(seed=0)
@@ -34,7 +34,7 @@ try:
     import gymnasium
     from gymnasium import spaces
 except ImportError as e:  # pragma: no cover - depends on the installation
-    raise ImportError("apac_mj.gym needs gymnasium, an optional extra: pip install 'apac_mj[gym]' "
+    raise ImportError("apac_mj.suite.gym needs gymnasium, an optional extra: pip install 'apac_mj[gym]' "
                       "(or pip install gymnasium==1.3.0)") from e
 
 from apac_mj import suite
@@ -96,7 +96,7 @@ class PlanarArmEnv(gymnasium.Env):
         if self.render_mode is None or self._env is None:
             return None
         if self._renderer is None:
-            from apac_mj.render import Renderer
+            from apac_mj.suite.render import Renderer
 
             self._renderer = Renderer(self._env.physics)
         return self._renderer.render()
@@ -117,7 +117,7 @@ def register_all() -> list[str]:
     for _, task_name in suite.ALL_TASKS:
         ids.append(env_id(task_name))
         if ids[-1] not in gymnasium.registry:
-            gymnasium.register(id=ids[-1], entry_point="apac_mj.gym:PlanarArmEnv", kwargs={"task_name": task_name})
+            gymnasium.register(id=ids[-1], entry_point="apac_mj.suite.gym:PlanarArmEnv", kwargs={"task_name": task_name})
     return ids
 
 

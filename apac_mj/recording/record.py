@@ -3,8 +3,8 @@
 :func:`record` is what ``apac-mj record`` and ``apac-mj demo`` call: it loads
 the agent (a run's latest checkpoint, or fresh networks), continues the run's
 environments where training left off (or builds fresh ones), rolls out frozen
-episodes with :class:`apac_mj.rollout.EpisodeLoop` and logs one member through
-:class:`apac_mj.recording.EpisodeRecorder`.
+episodes with :class:`apac_mj.run.rollout.EpisodeLoop` and logs one member through
+:class:`apac_mj.recording.recording.EpisodeRecorder`.
 """
 from __future__ import annotations
 
@@ -17,12 +17,13 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from apac_mj import checkpoint, kinds
-from apac_mj.agent import Agent
+from apac_mj.run import checkpoint
+from apac_mj import kinds
+from apac_mj.agent.agent import Agent
 from apac_mj.config import AgentConfig, TrainConfig, task_spec, train_config_from_dict
 from apac_mj.kinematics import Geometry
-from apac_mj.rollout import EpisodeLoop, running_statistics
-from apac_mj.vec_env import VecEnv
+from apac_mj.run.rollout import EpisodeLoop, running_statistics
+from apac_mj.suite.vec_env import VecEnv
 
 
 @dataclasses.dataclass(frozen=True)
@@ -48,9 +49,9 @@ def record(out: str | Path, run: str | Path | None = None, task: str | None = No
     """
     out, video = Path(out), None if video is None else Path(video)
     _check(out, run, video, episodes, fps, seed, member)
-    from apac_mj.recording import EpisodeRecorder
-    from apac_mj.render import write_video
-    from apac_mj.trainer import config_dict
+    from apac_mj.recording.recording import EpisodeRecorder
+    from apac_mj.suite.render import write_video
+    from apac_mj.run.trainer import config_dict
 
     cfg, net, first, env_state, running = load_agent(run, task, agent, seed, member, as_episode)
     member = member if run is not None else 0
@@ -80,7 +81,7 @@ def _check(out: Path, run: str | Path | None, video: Path | None, episodes: int,
     if seed < 0 or member < 0:
         raise ValueError("--seed and --member must be >= 0")
     if run is not None and not (Path(run) / "config.json").is_file():
-        from apac_mj.evaluate import not_a_run_dir
+        from apac_mj.run.evaluate import not_a_run_dir
 
         raise FileNotFoundError(f"--run: {not_a_run_dir(Path(run), 'record --run')}")
 
@@ -93,7 +94,7 @@ def load_agent(run: str | Path | None, task: str | None, agent: str | None, seed
         cfg = TrainConfig(task=task or "changing_target", seeds=(seed,), agent=AgentConfig(agent=agent or kinds.DEFAULT))
         net = Agent(cfg.agent, cfg.seeds, geometry=Geometry.from_spec(task_spec(cfg)))
         return cfg, net, cfg.agent.planning_episodes if as_episode is None else as_episode, None, {}
-    from apac_mj.evaluate import warn_user
+    from apac_mj.run.evaluate import warn_user
 
     ckpt = checkpoint.load_run_checkpoint(Path(run), required=("config", "agent", "loop", "env"), warn=warn_user)
     run_cfg = dict(ckpt["config"])
@@ -127,7 +128,7 @@ def _say_overrides(run: str | Path, task: str | None, agent: str | None, seed: i
 
 def rollout_env(cfg: TrainConfig, seed: int, env_state: dict[str, Any] | None) -> VecEnv:
     """The run's environments where training left off (``env_state``), else fresh ones seeded from ``seed``."""
-    from apac_mj.trainer import training_env
+    from apac_mj.run.trainer import training_env
 
     if env_state is None:
         return VecEnv(cfg.task, [seed + k for k in range(len(cfg.seeds))], actuation=cfg.actuation,
@@ -138,7 +139,7 @@ def rollout_env(cfg: TrainConfig, seed: int, env_state: dict[str, Any] | None) -
 
 
 def _frames(path: Path) -> int:
-    from apac_mj.recording import RENDER, read_recording
+    from apac_mj.recording.recording import RENDER, read_recording
 
     entities, _, _ = read_recording(path)
     return len(entities[RENDER].times["frame"])

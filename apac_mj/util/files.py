@@ -8,7 +8,7 @@ from typing import Any
 
 import pandas as pd
 
-from apac_mj.checkpoint import atomic_write_bytes
+from apac_mj.run.checkpoint import atomic_write_bytes
 
 
 def atomic_write_text(path: Path, text: str) -> None:

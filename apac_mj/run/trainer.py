@@ -24,8 +24,8 @@ batched loop until every member finished ``cfg.episodes`` training episodes.
   nothing, a fixed point the paper-sized networks fall into and never leave.
 * Occluded vision during training: the integrator uses the forward model's
   prediction wherever ``vision`` is 0 and the agent learns from the reward of
-  its own estimate (see :mod:`apac_mj.rollout`). The paper trains with
-  perfect vision and tests occlusion afterwards (:mod:`apac_mj.evaluate`); the
+  its own estimate (see :mod:`apac_mj.run.rollout`). The paper trains with
+  perfect vision and tests occlusion afterwards (:mod:`apac_mj.run.evaluate`); the
   grid does the same.
 * Changing kinematics start after ``growth_start_episode`` *training*
   episodes: the environment's threshold is shifted by the babbling count.
@@ -56,14 +56,14 @@ import pandas as pd
 import torch
 from tqdm.auto import tqdm
 
-from apac_mj import checkpoint
-from apac_mj.agent import Agent
+from apac_mj.run import checkpoint
+from apac_mj.agent.agent import Agent
 from apac_mj.config import TrainConfig, task_spec, to_dict
-from apac_mj.files import atomic_write_parquet
+from apac_mj.util.files import atomic_write_parquet
 from apac_mj.kinds import arbitrator_for
 from apac_mj.kinematics import Geometry
-from apac_mj.rollout import EpisodeLoop, EpisodeState, OnEpisodeStart, OnStep, StepInfo, running_statistics
-from apac_mj.vec_env import VecEnv
+from apac_mj.run.rollout import EpisodeLoop, EpisodeState, OnEpisodeStart, OnStep, StepInfo, running_statistics
+from apac_mj.suite.vec_env import VecEnv
 
 #: Episodes (all seeds) in the progress bar's running success rate and habit share.
 PROGRESS_WINDOW = 20
@@ -539,12 +539,12 @@ def _plain(row: dict[str, Any]) -> dict[str, Any]:
     return {k: (v.item() if hasattr(v, "item") else v) for k, v in row.items()}
 
 
-# -- recordings (apac_mj.recording) ----------------------------------------------------------------
+# -- recordings (apac_mj.recording.recording) ----------------------------------------------------------------
 def _recorder(out_dir: Path, record_every: int | None, config: dict[str, Any]) -> Any:
-    """``apac_mj.recording.EpisodeRecorder(out_dir / "recordings", record_every, config)`` if asked for."""
+    """``apac_mj.recording.recording.EpisodeRecorder(out_dir / "recordings", record_every, config)`` if asked for."""
     if record_every is None:
         return None
-    from apac_mj import recording
+    from apac_mj.recording import recording
 
     return recording.EpisodeRecorder(out_dir / "recordings", record_every=record_every, config=config)
 

@@ -1,0 +1,1 @@
+"""The experiment grid: presets, cells, executors (local, Ray) and the results they leave."""

@@ -1,0 +1,1 @@
+"""Rerun recordings: every rerun call (recording) and recording a trained run (record)."""

@@ -1,0 +1,1 @@
+"""One run: the episode loop, the trainer, frozen evaluation and checkpoints."""
