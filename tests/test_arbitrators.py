@@ -13,7 +13,8 @@ import torch
 
 from apac_mj.run import checkpoint
 from apac_mj import kinds
-from apac_mj.agent.arbitration import (HABIT_COST, PLANNING_COST, ArbitrationContext, ReliabilityArbitrator,
+from apac_mj.types import HABIT_COST, PLANNING_COST, ArbitrationContext
+from apac_mj.agent.arbitration import (ReliabilityArbitrator,
                                 SpeedAccuracyArbitrator, UncertaintyArbitrator, blend, ema)
 from apac_mj.config import AgentConfig
 from apac_mj.run.evaluate import evaluate, load_run

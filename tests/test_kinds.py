@@ -11,7 +11,8 @@ import torch
 
 from apac_mj.experiments import grid
 from apac_mj import kinds, report
-from apac_mj.agent.arbitration import HISTORY, ArbitrationContext
+from apac_mj.agent.arbitration import HISTORY
+from apac_mj.types import ArbitrationContext
 from apac_mj.config import AgentConfig
 
 PACKAGE = Path(__file__).resolve().parents[1] / "apac_mj"

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from apac_mj.agent.agent import _member_adam, member_generators
-from apac_mj.agent.arbitration import ArbitrationContext
+from apac_mj.types import ArbitrationContext
 from apac_mj.kinds import arbitrator_for
 from apac_mj.agent.replay import EnsembleReplay
 from apac_mj.config import AgentConfig

@@ -43,74 +43,18 @@ loaded by the tests). Every rule leaves its decision inputs in
 """
 from __future__ import annotations
 
-import dataclasses
-from typing import TYPE_CHECKING, Any, Callable, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 import torch
+
+from apac_mj.types import HABIT_COST, PLANNING_COST, ArbitrationContext
 
 if TYPE_CHECKING:
     from apac_mj.config import AgentConfig
 
 #: TD errors of the member's last transitions kept in :attr:`ArbitrationContext.recent_deltas`.
 HISTORY = 8
-#: Time cost of one action (the paper's Fig. 6: planning three times slower than a habit).
-PLANNING_COST, HABIT_COST = 3, 1
-
-
-@dataclasses.dataclass
-class ArbitrationContext:
-    """What an arbitrator sees at one step, member-batched ``[E]`` (CPU tensors except ``state``).
-
-    Members that do not step this time have stale rows; their decision is ignored.
-    """
-
-    #: Training episode (0-based; babbling negative) as the arbitrator is to read it.
-    episode: torch.Tensor
-    #: Step within the episode (0-based).
-    step: torch.Tensor
-    #: TD error of the member's last transition (float32; NaN: none yet this episode).
-    last_delta: torch.Tensor
-    #: ``[E, HISTORY]`` TD errors of this episode's last transitions, oldest first, NaN-padded on the left.
-    recent_deltas: torch.Tensor | None = None
-    #: True where the state the agent acts on was seen (always at an episode's start).
-    vision: torch.Tensor | None = None
-    #: Forward model's error (cm, Euclidean over end and elbow) at the member's last seen step; NaN: none yet.
-    forward_error: torch.Tensor | None = None
-    #: The integrator's state the agent acts on ``[E, 6]`` (on the agent's device); None if not given.
-    state: torch.Tensor | None = None
-    #: The agent's per-member uncertainty estimates ``name -> [E]`` (empty when the agent has none).
-    uncertainty: dict[str, torch.Tensor] = dataclasses.field(default_factory=dict)
-    #: The actor's proposal ``[E, 2]`` (degrees, no noise) in ``state``; None if not given.
-    habit_action: torch.Tensor | None = None
-    #: The forward model as a checker: action ``[E, 2]`` -> predicted end effector ``[E, 2]`` after it
-    #: (from ``state``); None if not given.
-    predict_end: Callable[[torch.Tensor], torch.Tensor] | None = None
-    #: Radius of the target zone (cm) the agent judges its estimate by.
-    zone_radius: float = 0.5
-
-    def __post_init__(self) -> None:
-        self.episode, self.step = torch.as_tensor(self.episode), torch.as_tensor(self.step)
-        self.last_delta = torch.as_tensor(self.last_delta, dtype=torch.float32)
-        if not (self.episode.shape == self.step.shape == self.last_delta.shape) or self.episode.dim() != 1:
-            raise ValueError("episode, step and last_delta must be 1-D tensors of equal length [E], got "
-                             f"{tuple(self.episode.shape)}, {tuple(self.step.shape)}, {tuple(self.last_delta.shape)}")
-        E = len(self.episode)
-        nan = torch.full((E,), float("nan"))
-        self.recent_deltas = (self.last_delta[:, None] if self.recent_deltas is None
-                              else torch.as_tensor(self.recent_deltas, dtype=torch.float32))
-        self.vision = torch.ones(E, dtype=torch.bool) if self.vision is None else torch.as_tensor(self.vision)
-        self.forward_error = nan if self.forward_error is None else torch.as_tensor(self.forward_error,
-                                                                                   dtype=torch.float32)
-        for name in ("vision", "forward_error"):
-            if tuple(getattr(self, name).shape) != (E,):
-                raise ValueError(f"{name} must have shape ({E},), got {tuple(getattr(self, name).shape)}")
-        if self.recent_deltas.dim() != 2 or len(self.recent_deltas) != E:
-            raise ValueError(f"recent_deltas must have shape ({E}, H), got {tuple(self.recent_deltas.shape)}")
-
-    @property
-    def E(self) -> int:
-        return len(self.episode)
 
 
 class Arbitrator(Protocol):
@@ -179,7 +123,7 @@ def blend(prior: torch.Tensor, samples: torch.Tensor, weight: float) -> torch.Te
 
 
 def step_signals(info: Any) -> dict[str, torch.Tensor]:
-    """What the running statistics learn from one :class:`~apac_mj.run.rollout.StepInfo` (``[E]`` each):
+    """What the running statistics learn from one :class:`~apac_mj.types.StepInfo` (``[E]`` each):
     the TD error, the forward model's end-effector error where the arm was seen (NaN elsewhere), the
     estimated distance to the target before and after the step, the step's time cost, the controller."""
     state, nxt = torch.as_tensor(info.state), torch.as_tensor(info.next_state)

@@ -108,7 +108,7 @@ class StepRecord:
 
     @classmethod
     def from_step_info(cls, info: Any, member: int) -> "StepRecord":
-        """The record of ``member`` from a member-batched ``apac_mj.run.rollout.StepInfo``."""
+        """The record of ``member`` from a member-batched ``apac_mj.types.StepInfo``."""
         def at(name: str) -> Any:
             return np.asarray(getattr(info, name))[member]
 

@@ -38,7 +38,7 @@ from tqdm.auto import tqdm
 
 from apac_mj.run import checkpoint
 from apac_mj.agent.agent import Agent
-from apac_mj.agent.arbitration import HABIT_COST, PLANNING_COST  # the time cost of one action (re-exported here)
+from apac_mj.types import HABIT_COST, PLANNING_COST  # the time cost of one action (re-exported here)
 from apac_mj.config import TrainConfig, task_spec, train_config_from_dict
 from apac_mj.util.files import atomic_write_parquet
 from apac_mj.kinematics import Geometry, angle_grid, motion_function

@@ -3,7 +3,7 @@
 :class:`EpisodeLoop` is the one place that carries per-member state between
 steps (:class:`EpisodeState`: the state estimate, step, TD errors, vision,
 forward-model error, counts) and builds the arbitrator's
-:class:`~apac_mj.agent.arbitration.ArbitrationContext` from it; the arbitrator's
+:class:`~apac_mj.types.ArbitrationContext` from it; the arbitrator's
 choice between the actor and the inverse model (plus OU noise) is
 :func:`select_action`. :func:`agent_step` is the body of Algorithm 2's inner
 loop up to the store: feed the action and the current arm estimate to the forward model, step the plant,
@@ -33,41 +33,11 @@ from typing import Any, Callable, Iterator
 import numpy as np
 import torch
 
-from apac_mj.agent.arbitration import HISTORY, ArbitrationContext, Arbitrator, push_delta, restore
+from apac_mj.agent.arbitration import HISTORY, Arbitrator, push_delta, restore
 from apac_mj.agent import integrator as integrators
 from apac_mj.suite.planar_arm import ACTION_BOUND
-from apac_mj.suite.vec_env import Observation, VecEnv
-
-
-@dataclasses.dataclass
-class StepInfo:
-    """What every member did at one step; member-batched numpy arrays (cm, degrees).
-
-    Rows of members that were not ``active`` are stale and must be ignored.
-    """
-
-    episode: np.ndarray        # [E] int: training episode (babbling: negative)
-    step: np.ndarray           # [E] int: step within the episode at which the action was taken (0-based)
-    active: np.ndarray         # [E] bool: the member stepped
-    state: np.ndarray          # [E, 6] the integrator's state the agent acted on [end, elbow, target]
-    true_arm: np.ndarray       # [E, 4] MuJoCo's arm after the step [end, elbow]
-    target: np.ndarray         # [E, 2] the true target
-    action: np.ndarray         # [E, 2] commanded action (joint-angle changes, degrees; the plant clips it)
-    habit: np.ndarray          # [E] bool: True if the actor acted, False if the inverse model (or babbling)
-    delta: np.ndarray          # [E] TD error of this transition
-    predicted_arm: np.ndarray  # [E, 4] the forward model's prediction of the arm after the step
-    reward: np.ndarray         # [E] reward the agent learned from (see module doc)
-    distance: np.ndarray       # [E] true end-effector to target distance after the step
-    done: np.ndarray           # [E] bool: the episode ended at this step
-    reached: np.ndarray        # [E] bool: ended inside the target zone (true position)
-    vision: np.ndarray         # [E] bool: the arm and target were seen after the step
-    joint_angles: np.ndarray   # [E, 2] after the step
-    link_lengths: np.ndarray   # [E, 2] after the step
-    next_state: np.ndarray     # [E, 6] the integrator's state after the step (s_{t+1})
-    terminal: np.ndarray       # [E] bool: the transition is terminal for learning (perceived reach)
-    #: The arbitrator's decision inputs at this step, ``name -> [E]`` (its ``last_inputs``; empty for
-    #: rules without inputs): what recordings show as "why".
-    arbitration: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
+from apac_mj.suite.vec_env import VecEnv
+from apac_mj.types import ArbitrationContext, Observation, StepInfo
 
 
 #: Hooks: ``on_step(info, vec_env)`` after every step, ``on_episode_start(members [E] bool, vec_env)`` after resets.

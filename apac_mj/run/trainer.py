@@ -62,7 +62,8 @@ from apac_mj.config import TrainConfig, task_spec, to_dict
 from apac_mj.util.files import atomic_write_parquet
 from apac_mj.kinds import arbitrator_for
 from apac_mj.kinematics import Geometry
-from apac_mj.run.rollout import EpisodeLoop, EpisodeState, OnEpisodeStart, OnStep, StepInfo, running_statistics
+from apac_mj.run.rollout import EpisodeLoop, EpisodeState, OnEpisodeStart, OnStep, running_statistics
+from apac_mj.types import StepInfo
 from apac_mj.suite.vec_env import VecEnv
 
 #: Episodes (all seeds) in the progress bar's running success rate and habit share.

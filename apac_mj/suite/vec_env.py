@@ -23,26 +23,10 @@ import torch
 
 from apac_mj import suite
 from apac_mj.suite.task_spec import TaskSpec
+from apac_mj.types import Observation
 
 #: The MuJoCo state captured for an exact resume.
 _SIG = int(mujoco.mjtState.mjSTATE_INTEGRATION)
-
-
-@dataclasses.dataclass
-class Observation:
-    """Member-batched view of the last time step of every member (cm).
-
-    Only the members stepped or reset by the call that returned it are fresh;
-    the others keep their previous values. Positions read zero where
-    ``vision`` is False (occluded vision).
-    """
-
-    arm: np.ndarray        # [E, 4] observed [end_x, end_y, elbow_x, elbow_y]
-    target: np.ndarray     # [E, 2] observed target
-    vision: np.ndarray     # [E] bool: the positions above were seen
-    reward: np.ndarray     # [E] the environment's reward (-distance); 0 after a reset
-    last: np.ndarray       # [E] bool: the episode ended (target reached or time limit)
-    reached: np.ndarray    # [E] bool: the episode ended inside the target zone
 
 
 class VecEnv:

@@ -1,0 +1,127 @@
+"""The records that cross layers: what the plant shows (:class:`Observation`), what an arbitrator sees
+(:class:`ArbitrationContext`) and what every step did (:class:`StepInfo`); and the time cost of an action.
+
+They live below the plant (``suite``), the learner (``agent``) and the run (``run``), so each of those names
+them in its signatures without importing the others. Units are the paper's: cm and degrees. This module
+loads no torch at import (the report and the command line read it without torch); the records that hold
+tensors import it when built.
+"""
+from __future__ import annotations
+
+import dataclasses
+from typing import TYPE_CHECKING, Callable
+
+import numpy as np
+
+if TYPE_CHECKING:
+    import torch
+
+#: Time cost of one action of each controller (the paper's Fig. 6: planning three times slower than a habit).
+PLANNING_COST, HABIT_COST = 3, 1
+
+
+@dataclasses.dataclass
+class Observation:
+    """Member-batched view of the last time step of every member (cm).
+
+    Only the members stepped or reset by the call that returned it are fresh;
+    the others keep their previous values. Positions read zero where
+    ``vision`` is False (occluded vision).
+    """
+
+    arm: np.ndarray        # [E, 4] observed [end_x, end_y, elbow_x, elbow_y]
+    target: np.ndarray     # [E, 2] observed target
+    vision: np.ndarray     # [E] bool: the positions above were seen
+    reward: np.ndarray     # [E] the environment's reward (-distance); 0 after a reset
+    last: np.ndarray       # [E] bool: the episode ended (target reached or time limit)
+    reached: np.ndarray    # [E] bool: the episode ended inside the target zone
+
+
+
+@dataclasses.dataclass
+class ArbitrationContext:
+    """What an arbitrator sees at one step, member-batched ``[E]`` (CPU tensors except ``state``).
+
+    Members that do not step this time have stale rows; their decision is ignored.
+    """
+
+    #: Training episode (0-based; babbling negative) as the arbitrator is to read it.
+    episode: torch.Tensor
+    #: Step within the episode (0-based).
+    step: torch.Tensor
+    #: TD error of the member's last transition (float32; NaN: none yet this episode).
+    last_delta: torch.Tensor
+    #: ``[E, HISTORY]`` TD errors of this episode's last transitions, oldest first, NaN-padded on the left.
+    recent_deltas: torch.Tensor | None = None
+    #: True where the state the agent acts on was seen (always at an episode's start).
+    vision: torch.Tensor | None = None
+    #: Forward model's error (cm, Euclidean over end and elbow) at the member's last seen step; NaN: none yet.
+    forward_error: torch.Tensor | None = None
+    #: The integrator's state the agent acts on ``[E, 6]`` (on the agent's device); None if not given.
+    state: torch.Tensor | None = None
+    #: The agent's per-member uncertainty estimates ``name -> [E]`` (empty when the agent has none).
+    uncertainty: dict[str, torch.Tensor] = dataclasses.field(default_factory=dict)
+    #: The actor's proposal ``[E, 2]`` (degrees, no noise) in ``state``; None if not given.
+    habit_action: torch.Tensor | None = None
+    #: The forward model as a checker: action ``[E, 2]`` -> predicted end effector ``[E, 2]`` after it
+    #: (from ``state``); None if not given.
+    predict_end: Callable[[torch.Tensor], torch.Tensor] | None = None
+    #: Radius of the target zone (cm) the agent judges its estimate by.
+    zone_radius: float = 0.5
+
+    def __post_init__(self) -> None:
+        import torch
+
+        self.episode, self.step = torch.as_tensor(self.episode), torch.as_tensor(self.step)
+        self.last_delta = torch.as_tensor(self.last_delta, dtype=torch.float32)
+        if not (self.episode.shape == self.step.shape == self.last_delta.shape) or self.episode.dim() != 1:
+            raise ValueError("episode, step and last_delta must be 1-D tensors of equal length [E], got "
+                             f"{tuple(self.episode.shape)}, {tuple(self.step.shape)}, {tuple(self.last_delta.shape)}")
+        E = len(self.episode)
+        nan = torch.full((E,), float("nan"))
+        self.recent_deltas = (self.last_delta[:, None] if self.recent_deltas is None
+                              else torch.as_tensor(self.recent_deltas, dtype=torch.float32))
+        self.vision = torch.ones(E, dtype=torch.bool) if self.vision is None else torch.as_tensor(self.vision)
+        self.forward_error = nan if self.forward_error is None else torch.as_tensor(self.forward_error,
+                                                                                   dtype=torch.float32)
+        for name in ("vision", "forward_error"):
+            if tuple(getattr(self, name).shape) != (E,):
+                raise ValueError(f"{name} must have shape ({E},), got {tuple(getattr(self, name).shape)}")
+        if self.recent_deltas.dim() != 2 or len(self.recent_deltas) != E:
+            raise ValueError(f"recent_deltas must have shape ({E}, H), got {tuple(self.recent_deltas.shape)}")
+
+    @property
+    def E(self) -> int:
+        return len(self.episode)
+
+
+
+@dataclasses.dataclass
+class StepInfo:
+    """What every member did at one step; member-batched numpy arrays (cm, degrees).
+
+    Rows of members that were not ``active`` are stale and must be ignored.
+    """
+
+    episode: np.ndarray        # [E] int: training episode (babbling: negative)
+    step: np.ndarray           # [E] int: step within the episode at which the action was taken (0-based)
+    active: np.ndarray         # [E] bool: the member stepped
+    state: np.ndarray          # [E, 6] the integrator's state the agent acted on [end, elbow, target]
+    true_arm: np.ndarray       # [E, 4] MuJoCo's arm after the step [end, elbow]
+    target: np.ndarray         # [E, 2] the true target
+    action: np.ndarray         # [E, 2] commanded action (joint-angle changes, degrees; the plant clips it)
+    habit: np.ndarray          # [E] bool: True if the actor acted, False if the inverse model (or babbling)
+    delta: np.ndarray          # [E] TD error of this transition
+    predicted_arm: np.ndarray  # [E, 4] the forward model's prediction of the arm after the step
+    reward: np.ndarray         # [E] reward the agent learned from (see module doc)
+    distance: np.ndarray       # [E] true end-effector to target distance after the step
+    done: np.ndarray           # [E] bool: the episode ended at this step
+    reached: np.ndarray        # [E] bool: ended inside the target zone (true position)
+    vision: np.ndarray         # [E] bool: the arm and target were seen after the step
+    joint_angles: np.ndarray   # [E, 2] after the step
+    link_lengths: np.ndarray   # [E, 2] after the step
+    next_state: np.ndarray     # [E, 6] the integrator's state after the step (s_{t+1})
+    terminal: np.ndarray       # [E] bool: the transition is terminal for learning (perceived reach)
+    #: The arbitrator's decision inputs at this step, ``name -> [E]`` (its ``last_inputs``; empty for
+    #: rules without inputs): what recordings show as "why".
+    arbitration: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
