@@ -1,8 +1,17 @@
-"""The import graph of apac_mj, function-local imports included, is acyclic (read with ast)."""
+"""The import graph of apac_mj (read with ast, function-local imports included): acyclic, and in layer order.
+
+The layers, lowest first (docs/architecture.md): the vocabulary and helpers; the plant (``suite``) and the
+learner (``agent``), which never import each other; one run (``run``); recordings and the experiment grid;
+the report; the demo; the command line. A module imports only from its own layer or below.
+"""
 from __future__ import annotations
 
 import ast
+import subprocess
+import sys
 from pathlib import Path
+
+import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "apac_mj"
 
@@ -24,10 +33,11 @@ def _type_checking_nodes(tree: ast.AST) -> set[int]:
     return out
 
 
-def imports(name: str) -> set[str]:
-    """The apac_mj modules ``name`` imports, anywhere in the file (also inside functions)."""
+def imports(name: str, type_level: bool = False) -> set[str]:
+    """The apac_mj modules ``name`` imports, anywhere in the file (also inside functions); with
+    ``type_level`` also those imported for annotations only (under ``if TYPE_CHECKING:``)."""
     tree = ast.parse(MODULES[name].read_text())
-    skip, out = _type_checking_nodes(tree), set()
+    skip, out = set() if type_level else _type_checking_nodes(tree), set()
     package = name if MODULES[name].name == "__init__.py" else name.rpartition(".")[0]
     for node in ast.walk(tree):
         if id(node) in skip:
@@ -87,3 +97,86 @@ def test_library_modules_do_not_import_the_command_line():
                     and n != "apac_mj.cli" for m in ms if m.startswith("apac_mj.commands") or m == "apac_mj.cli")
     assert not upward, upward
     assert not any(m == "apac_mj.cli" for m in graph["apac_mj.commands.demo"])
+
+
+def test_no_cycle_at_type_level():
+    """Imports for annotations only count too: no loop even a type checker has to break."""
+    graph = {name: imports(name, type_level=True) - {"apac_mj"} for name in MODULES}
+    cycle = find_cycle(graph)
+    assert cycle is None, "import cycle at type level: " + " -> ".join(cycle)
+
+
+#: Layers, lowest first: (rank, module-name prefixes). A prefix ending in "." names a package's modules.
+LAYERS = (
+    (0, ("apac_mj.util.", "apac_mj.util", "apac_mj.types", "apac_mj.kinematics", "apac_mj.config", "apac_mj.kinds")),
+    (1, ("apac_mj.suite", "apac_mj.agent")),
+    (2, ("apac_mj.run",)),
+    (3, ("apac_mj.recording", "apac_mj.experiments")),
+    (4, ("apac_mj.report",)),
+    (5, ("apac_mj.demo",)),
+    (6, ("apac_mj.cli", "apac_mj.commands")),
+    (7, ("apac_mj",)),  # the package's face: loads the rest lazily, by name
+)
+#: Edges against the order, each with its reason. The kind registry (vocabulary) names its built-in
+#: arbitration rules, imported when a kind is first built, so that ``kinds`` stays torch-free.
+DECLARED_UPWARD = {
+    ("apac_mj.kinds", "apac_mj.agent.arbitration"): "built-in kinds' rules, imported on first use",
+    ("apac_mj.kinds", "apac_mj.agent.arbitrators"): "built-in kinds' rules, imported on first use",
+}
+
+
+def layer(name: str) -> int:
+    """The rank of module ``name`` (the most specific matching prefix)."""
+    matches = [(len(p), rank) for rank, prefixes in LAYERS for p in prefixes if name == p.rstrip(".")
+               or name.startswith(p if p.endswith(".") else p + ".")]
+    assert matches, f"{name} is in no layer: add it to LAYERS (and docs/architecture.md)"
+    return max(matches)[1]
+
+
+def test_every_module_has_a_layer_and_imports_only_downward():
+    graph = {name: imports(name) for name in MODULES}
+    upward = sorted(f"{n} (layer {layer(n)}) -> {m} (layer {layer(m)})" for n, ms in graph.items() for m in ms
+                    if layer(m) > layer(n) and (n, m) not in DECLARED_UPWARD)
+    assert not upward, "imports against the layer order:\n" + "\n".join(upward)
+
+
+def test_the_plant_and_the_learner_never_import_each_other():
+    graph = {name: imports(name, type_level=True) for name in MODULES}
+    for a, b in (("apac_mj.suite", "apac_mj.agent"), ("apac_mj.agent", "apac_mj.suite")):
+        crossing = sorted(f"{n} -> {m}" for n, ms in graph.items() for m in ms
+                          if (n == a or n.startswith(a + ".")) and (m == b or m.startswith(b + ".")))
+        assert not crossing, crossing
+
+
+def test_the_layer_check_sees_a_violation():
+    assert layer("apac_mj.agent.agent") == 1 and layer("apac_mj.run.trainer") == 2 and layer("apac_mj") == 7
+    assert layer("apac_mj.util.files") == 0 and layer("apac_mj.report") == 4 and layer("apac_mj.commands.grid") == 6
+    graph = {name: imports(name) for name in MODULES}
+    assert "apac_mj.agent.agent" in graph["apac_mj.run.trainer"]  # a real downward edge, read from the file
+    with pytest.raises(AssertionError):
+        layer("apac_mjx.other")
+
+
+def test_the_top_level_is_the_vocabulary_and_the_face():
+    """At most 8 modules directly in apac_mj/; everything else lives in a layer's package."""
+    top = sorted(p.name for p in PACKAGE.glob("*.py"))
+    assert len(top) <= 8, top
+
+
+@pytest.mark.parametrize("code", ["import apac_mj", "import apac_mj.cli; apac_mj.cli.build_parser()",
+                                  "import apac_mj.types, apac_mj.config, apac_mj.kinds, apac_mj.report"])
+def test_the_face_and_the_command_line_load_without_torch(code: str):
+    out = subprocess.run([sys.executable, "-c", f"{code}; import sys; print('torch' in sys.modules)"],
+                         capture_output=True, text=True, check=True, cwd=PACKAGE.parent)
+    assert out.stdout.strip() == "False", out
+
+
+def test_every_public_name_resolves():
+    import apac_mj
+
+    for name in apac_mj.__all__:
+        assert getattr(apac_mj, name) is not None, name
+    assert apac_mj.train.__module__ == "apac_mj.run.trainer"
+    assert apac_mj.AgentConfig is __import__("apac_mj.config", fromlist=["AgentConfig"]).AgentConfig
+    with pytest.raises(AttributeError, match="no attribute 'nope'"):
+        apac_mj.nope  # noqa: B018
