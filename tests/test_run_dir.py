@@ -188,3 +188,14 @@ def test_only_the_run_directory_names_its_files():
     found = [f"{p.relative_to(PACKAGE)}:{c.lineno} {c.value!r}" for p in sorted(PACKAGE.rglob("*.py")) if p != owner
              for c in _string_constants(ast.parse(p.read_text())) if c.value in names]
     assert not found, found
+
+
+def test_the_run_layer_does_not_import_the_layers_above_it():
+    """Recordings come in as hooks and the grid-directory hint lives in the commands: run/ imports neither."""
+    from test_imports import MODULES, imports
+
+    run_modules = [m for m in MODULES if m.startswith("apac_mj.run.")]
+    assert "apac_mj.run.run_dir" in run_modules
+    upward = [f"{m} -> {i}" for m in run_modules for i in imports(m)
+              if i.startswith(("apac_mj.recording", "apac_mj.experiments", "apac_mj.report", "apac_mj.commands"))]
+    assert not upward, upward
