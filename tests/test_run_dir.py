@@ -7,7 +7,6 @@ import json
 import shutil
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 import pytest
 import torch
@@ -38,9 +37,9 @@ def written(run: RunDir, cfg: TrainConfig) -> dict:
 def fake_checkpoint(metric_rows: int = 0, episode: int = 2) -> dict:
     """A checkpoint with every key a training checkpoint has (contents: small stand-ins)."""
     env = {"members": [{"task": {"lengths": torch.tensor([5.0 + k, 8.0]), "static_target": None}} for k in (0, 1)]}
-    return RunCheckpoint.layout({"episodes": 4}, {"episode": torch.tensor([episode, episode + 1])}, {"w": torch.ones(2)},
-                                env, {"arbitrator": {}, "integrator": {}}, [torch.Generator().get_state()],
-                                metric_rows)
+    loop = {"episode": torch.tensor([episode, episode + 1])}
+    return RunCheckpoint.layout({"episodes": 4}, loop, {"w": torch.ones(2)}, env, {"arbitrator": {}, "integrator": {}},
+                                [torch.Generator().get_state()], metric_rows)
 
 
 def test_config_round_trip_keeps_the_commit_out_of_the_config(tmp_path):
