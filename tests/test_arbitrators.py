@@ -17,7 +17,8 @@ from apac_mj.types import HABIT_COST, PLANNING_COST, ArbitrationContext
 from apac_mj.agent.arbitration import (ReliabilityArbitrator,
                                 SpeedAccuracyArbitrator, UncertaintyArbitrator, blend, ema)
 from apac_mj.config import AgentConfig
-from apac_mj.run.evaluate import evaluate, load_run
+from apac_mj.run.evaluate import evaluate
+from apac_mj.run.run_dir import load_run
 from apac_mj.run.trainer import train
 
 from test_trainer import tiny_config, train_killed_and_resumed
@@ -193,7 +194,7 @@ def test_statistics_are_checkpointed_and_frozen_in_the_tests(tmp_path, agent):
     evaluate(run, protocols=("grid",), limit=2, on_step=lambda info, env: seen.append(info.arbitration))
     assert seen and all(set(s) for s in seen)
     cfg_, _, ckpt = load_run(run)
-    arb = kinds.arbitrator_for(cfg_.agent, ckpt["arbitrator"])
+    arb = kinds.arbitrator_for(cfg_.agent, ckpt.running_statistics()["arbitrator"])
     assert all(same(arb.stats[k], state[k]) for k in state)
     # the test ran with the statistics frozen: the checkpoint is unchanged by it
     again = checkpoint.load(run / "checkpoints" / "latest.pt")["arbitrator"]

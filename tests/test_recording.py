@@ -169,6 +169,7 @@ def tiny_run(tmp_path_factory) -> tuple[Path, dict[int, list[bool]]]:
     """A 2-seed APAC run with small networks, recording every 2nd episode; what seed 0's agent reported."""
     import torch
 
+    from apac_mj.run.run_dir import RunDir, config_dict
     from apac_mj.run.trainer import train
 
     torch.set_num_threads(1)
@@ -179,7 +180,9 @@ def tiny_run(tmp_path_factory) -> tuple[Path, dict[int, list[bool]]]:
             reported.setdefault(int(info.episode[0]), []).append(bool(info.habit[0]))
 
     run_dir = tmp_path_factory.mktemp("train") / "run"
-    train(_tiny_train_config(seeds=(0, 1)), run_dir, progress=False, record_every=2, on_step=hook)
+    cfg = _tiny_train_config(seeds=(0, 1))
+    with R.EpisodeRecorder(RunDir(run_dir).recordings, record_every=2, config=config_dict(cfg)) as recorder:
+        train(cfg, run_dir, progress=False, hooks=[recorder], on_step=hook)
     return run_dir, reported
 
 

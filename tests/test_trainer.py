@@ -11,7 +11,9 @@ import torch
 
 from apac_mj.run import checkpoint
 from apac_mj.config import AgentConfig, TrainConfig
-from apac_mj.run.trainer import METRIC_COLUMNS, train
+from apac_mj.run.run_dir import METRIC_COLUMNS
+from apac_mj.run.trainer import train
+from apac_mj.util import files
 
 
 TINY = dict(actor_hidden=(16, 16), critic_hidden=(16, 16), forward_hidden=(16, 16), inverse_hidden=(16, 16),
@@ -279,7 +281,7 @@ def test_result_files_honour_the_umask(tmp_path):
     assert set(modes.values()) == {0o644}, modes
     old = os.umask(0o077)
     try:
-        checkpoint.atomic_write_bytes(tmp_path / "private", lambda f: f.write(b"x"))
+        files.atomic_write_bytes(tmp_path / "private", lambda f: f.write(b"x"))
     finally:
         os.umask(old)
     assert (tmp_path / "private").stat().st_mode & 0o777 == 0o600

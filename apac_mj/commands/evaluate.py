@@ -39,8 +39,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from apac_mj.commands.hints import results_dir_hint
     from apac_mj.run.evaluate import evaluate
 
+    if (hint := results_dir_hint(args.run_dir, "evaluate")) is not None:
+        raise FileNotFoundError(hint)
     protocols = tuple(p.strip() for p in args.protocols.split(",") if p.strip())
     summary = evaluate(args.run_dir, protocols=protocols, region=args.region, device=args.device,
                        progress=not args.no_progress, limit=args.limit)

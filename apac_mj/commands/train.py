@@ -4,6 +4,11 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from apac_mj.config import TrainConfig
+    from apac_mj.recording.recording import EpisodeRecorder
 
 EPILOG = """\
 examples:
@@ -89,7 +94,7 @@ def agent_overrides(items: list[str]) -> dict:
     return overrides.typed_fields(AgentConfig, data.get("agent", {}), "--set agent.", skip=("agent",))
 
 
-def train_config(args: argparse.Namespace):
+def train_config(args: argparse.Namespace) -> TrainConfig:
     """The run's TrainConfig: the flags, then every --set (one grammar, typed and checked here)."""
     from apac_mj.util import overrides
     from apac_mj.config import AgentConfig, TrainConfig
@@ -107,20 +112,34 @@ def train_config(args: argparse.Namespace):
     return TrainConfig(agent=AgentConfig(**agent), **overrides.typed_fields(TrainConfig, data, "--set ", skip=("agent",)))
 
 
+def recorder(out: str, record_every: int, cfg: TrainConfig) -> EpisodeRecorder:
+    """``--record-every N``: the hook that records every N-th episode into RUN_DIR/recordings/."""
+    from apac_mj.recording.recording import EpisodeRecorder
+    from apac_mj.run.run_dir import RunDir, config_dict
+
+    return EpisodeRecorder(RunDir(out).recordings, record_every=record_every, config=config_dict(cfg))
+
+
 def run(args: argparse.Namespace) -> int:
+    import contextlib
+
     import torch
 
-    from apac_mj.run.trainer import metric_rows, run_summary, train
+    from apac_mj.run.run_dir import RunDir
+    from apac_mj.run.trainer import train
 
     if args.threads < 1:
         raise ValueError(f"--threads must be >= 1, got {args.threads}")
     cfg = train_config(args)
     torch.set_num_threads(args.threads)
-    before = metric_rows(args.out)
-    run_dir = train(cfg, args.out, progress=not args.no_progress, record_every=args.record_every)
-    trained = metric_rows(run_dir) != before
-    summary = {"run_dir": str(run_dir), "status": "trained" if trained else "already finished; nothing trained",
-               **run_summary(run_dir)}
+    run_dir = RunDir(args.out)
+    before = run_dir.metric_rows()
+    with contextlib.ExitStack() as stack:
+        hooks = [] if args.record_every is None else [stack.enter_context(recorder(args.out, args.record_every, cfg))]
+        train(cfg, run_dir.path, progress=not args.no_progress, hooks=hooks)
+    trained = run_dir.metric_rows() != before
+    summary = {"run_dir": str(run_dir.path), "status": "trained" if trained else "already finished; nothing trained",
+               **run_dir.summary()}
     print(json.dumps(summary))
-    print(f"next: apac-mj evaluate {run_dir}")
+    print(f"next: apac-mj evaluate {run_dir.path}")
     return 0

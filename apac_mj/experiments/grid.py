@@ -32,7 +32,7 @@ from apac_mj.util.files import atomic_write_text, jsonable as _jsonable, read_js
 from apac_mj.experiments.presets import (CONDITIONS, TRAIN_REGION_SUFFIX, Preset, PresetError, Tests,  # noqa: F401
                              load_preset, parse_override, parse_seeds, preset_from_dict, preset_names, preset_path)
 from apac_mj.experiments.results import CELL_FILE, MANIFEST, cell_dirs, load_results, load_tests  # noqa: F401
-
+from apac_mj.run.run_dir import RunDir, diff, validate
 
 
 @dataclasses.dataclass(frozen=True)
@@ -77,13 +77,12 @@ def cells(preset: Preset) -> list[Cell]:
 
 def cell_done(cell_dir: Path) -> bool:
     """Finished: training DONE for the cell's episode count and, if it has tests, the evaluation summary written."""
-    info = read_json(cell_dir / CELL_FILE)
-    if info is None or not (cell_dir / "DONE").exists():
+    info, run = read_json(cell_dir / CELL_FILE), RunDir(cell_dir)
+    if info is None or not run.finished():
         return False
-    run = read_json(cell_dir / "config.json")
-    if run is None or run.get("episodes") != info["train_config"]["episodes"]:
+    if run.episodes() != info["train_config"]["episodes"]:
         return False  # being extended to more episodes
-    return not info["protocols"] or (cell_dir / "eval" / "summary.json").exists()
+    return not info["protocols"] or run.evaluated()
 
 
 def _cell_info(cell: Cell, preset: Preset) -> dict[str, Any]:
@@ -103,14 +102,14 @@ def cell_status(cell: Cell, preset: Preset, results: Path) -> tuple[str, str]:
     same_but_episodes = _strip_episodes(old) == _strip_episodes(info)
     if old != info and not (same_but_episodes and now > was):
         why = (f"its run has {was} episodes, more than the {now} asked for" if same_but_episodes
-               else _first_difference(old, info))
+               else "; ".join(diff(old, info, "there")))
         return "refused", (f"{cell_dir} holds results of a different configuration ({why}); use another --out "
                            "or delete that directory")
     if now > was:
         return "to extend", f"from {was} to {now} episodes"
     if cell_done(cell_dir):
         return "done", ""
-    return ("to resume", "") if (cell_dir / "config.json").is_file() else ("to run", "")
+    return ("to resume", "") if RunDir(cell_dir).exists() else ("to run", "")
 
 
 def _strip_episodes(info: dict[str, Any]) -> dict[str, Any]:
@@ -132,8 +131,6 @@ def prepare_cell(cell: Cell, preset: Preset, results: Path) -> Path:
 
 def check_grid(preset: Preset, results: Path) -> dict[str, tuple[str, str]]:
     """Every cell's status; raises ValueError naming every refused cell or invalid run (nothing is written)."""
-    from apac_mj.run.trainer import validate
-
     for c in cells(preset):
         validate(c.train_config(preset))  # devices, seeds, the task and its overrides: before anything runs
     statuses = {c.name: cell_status(c, preset, Path(results)) for c in cells(preset)}
@@ -141,17 +138,6 @@ def check_grid(preset: Preset, results: Path) -> dict[str, tuple[str, str]]:
     if refused:
         raise ValueError(f"{len(refused)} of {len(statuses)} cells refused, nothing run: " + "; ".join(refused))
     return statuses
-
-
-def _first_difference(old: dict, new: dict, prefix: str = "") -> str:
-    for k in sorted(set(old) | set(new)):
-        a, b = old.get(k), new.get(k)
-        if isinstance(a, dict) and isinstance(b, dict):
-            if a != b:
-                return _first_difference(a, b, f"{prefix}{k}.")
-        elif a != b:
-            return f"{prefix}{k}: {a!r} there, {b!r} now"
-    return "no difference"
 
 
 def run_cell(cell_dir: str | Path, progress: bool = True, threads: int = 1) -> dict[str, Any]:

@@ -11,6 +11,7 @@ from typing import Any
 
 import pandas as pd
 
+from apac_mj.run.run_dir import RunDir
 from apac_mj.util.files import read_json
 
 CELL_FILE = "cell.json"
@@ -29,8 +30,8 @@ def load_results(results: str | Path) -> pd.DataFrame:
     """Every cell's metrics.parquet as one table keyed by agent, condition, region, seed, episode."""
     frames = []
     for d in cell_dirs(results):
-        if (d / "metrics.parquet").exists():
-            frames.append(_tag(pd.read_parquet(d / "metrics.parquet"), read_json(d / CELL_FILE)))
+        if RunDir(d).has_metrics():
+            frames.append(_tag(RunDir(d).metrics(), read_json(d / CELL_FILE)))
     if not frames:
         raise FileNotFoundError(f"no cell in {results} has a metrics.parquet yet")
     df = pd.concat(frames, ignore_index=True)
@@ -41,7 +42,7 @@ def load_tests(results: str | Path) -> pd.DataFrame:
     """Every cell's eval/<protocol>.parquet as one table keyed by agent, condition, region, protocol, seed, target_index."""
     frames = []
     for d in cell_dirs(results):
-        for f in sorted((d / "eval").glob("*.parquet")):
+        for f in RunDir(d).eval_paths():
             frames.append(_tag(pd.read_parquet(f), read_json(d / CELL_FILE), protocol=f.stem))
     if not frames:
         return pd.DataFrame(columns=KEYS + ["protocol", "target_index"])

@@ -9,20 +9,20 @@ episodes with :class:`apac_mj.run.rollout.EpisodeLoop` and logs one member throu
 from __future__ import annotations
 
 import dataclasses
-import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
 from tqdm.auto import tqdm
 
-from apac_mj.run import checkpoint
 from apac_mj import kinds
 from apac_mj.agent.agent import Agent
-from apac_mj.config import AgentConfig, TrainConfig, task_spec, train_config_from_dict
+from apac_mj.config import AgentConfig, TrainConfig, task_spec
 from apac_mj.kinematics import Geometry
-from apac_mj.run.rollout import EpisodeLoop, running_statistics
+from apac_mj.recording.recording import RENDER, EpisodeRecorder, read_recording
+from apac_mj.run.rollout import EpisodeLoop
+from apac_mj.run.run_dir import RunDir, config_dict, load_run, say, training_env
+from apac_mj.suite.render import write_video
 from apac_mj.suite.vec_env import VecEnv
 
 
@@ -49,17 +49,12 @@ def record(out: str | Path, run: str | Path | None = None, task: str | None = No
     """
     out, video = Path(out), None if video is None else Path(video)
     _check(out, run, video, episodes, fps, seed, member)
-    from apac_mj.recording.recording import EpisodeRecorder
-    from apac_mj.suite.render import write_video
-    from apac_mj.run.trainer import config_dict
-
     cfg, net, first, env_state, running = load_agent(run, task, agent, seed, member, as_episode)
     member = member if run is not None else 0
     env = rollout_env(cfg, seed, env_state)
     with EpisodeRecorder(out.parent, 1, config_dict(cfg), member=member, out=out,
                          keep_frames=video is not None) as recorder:
-        loop = EpisodeLoop(net, kinds.arbitrator_for(cfg.agent), env, on_step=recorder.on_step,
-                           on_episode_start=recorder.on_episode_start, adapt=False)
+        loop = EpisodeLoop(net, kinds.arbitrator_for(cfg.agent), env, hooks=[recorder], adapt=False)
         loop.load_state_dict(running)
         for k in tqdm(range(episodes), desc="record", unit="episode", disable=not progress):
             loop.run_episode(np.ones(env.E, dtype=bool), first + k)
@@ -80,56 +75,46 @@ def _check(out: Path, run: str | Path | None, video: Path | None, episodes: int,
         raise ValueError(f"--fps must be >= 1, got {fps}")
     if seed < 0 or member < 0:
         raise ValueError("--seed and --member must be >= 0")
-    if run is not None and not (Path(run) / "config.json").is_file():
-        from apac_mj.run.evaluate import not_a_run_dir
-
-        raise FileNotFoundError(f"--run: {not_a_run_dir(Path(run), 'record --run')}")
+    if run is not None and (problem := RunDir(run).problem()) is not None:
+        raise FileNotFoundError(f"--run: {problem}")
 
 
 def load_agent(run: str | Path | None, task: str | None, agent: str | None, seed: int, member: int,
                as_episode: int | None) -> tuple[TrainConfig, Agent, int, dict[str, Any] | None, dict[str, Any]]:
     """(config, agent, first arbitrator episode, the run's environment state or None, the arbitrator's and
-    the integrator's running statistics): from a run's latest checkpoint, or fresh networks seeded from ``seed``."""
+    the integrator's running statistics): from a run's newest checkpoint (on the CPU in fp32), or fresh
+    networks seeded from ``seed``."""
     if run is None:
         cfg = TrainConfig(task=task or "changing_target", seeds=(seed,), agent=AgentConfig(agent=agent or kinds.DEFAULT))
         net = Agent(cfg.agent, cfg.seeds, geometry=Geometry.from_spec(task_spec(cfg)))
         return cfg, net, cfg.agent.planning_episodes if as_episode is None else as_episode, None, {}
-    from apac_mj.run.evaluate import warn_user
-
-    ckpt = checkpoint.load_run_checkpoint(Path(run), required=("config", "agent", "loop", "env"), warn=warn_user)
-    run_cfg = dict(ckpt["config"])
-    run_cfg.pop("git_commit", None)
-    cfg = train_config_from_dict(run_cfg)
+    cfg, net, ckpt = load_run(run, device="cpu", precision="fp32")
     if member >= len(cfg.seeds):
         raise ValueError(f"--member {member} out of range: the run has {len(cfg.seeds)} seeds {list(cfg.seeds)}")
-    net = Agent(cfg.agent, cfg.seeds, geometry=Geometry.from_spec(task_spec(cfg)))
-    net.load_state_dict(ckpt["agent"])
+    trained_kind = cfg.agent.agent
     _say_overrides(run, task, agent, seed, cfg)
     if agent is not None:
         cfg.agent.agent = kinds.get(agent).name
-    env_state = ckpt["env"] if task in (None, cfg.task) else None
+    env_state = ckpt.env if task in (None, cfg.task) else None
     cfg.task = task or cfg.task
-    trained = int(ckpt["loop"]["episode"][member])
-    running = running_statistics(ckpt)
-    if agent not in (None, run_cfg["agent"]["agent"]):
+    running = ckpt.running_statistics()
+    if agent not in (None, trained_kind):
         running.pop("arbitrator", None)  # re-arbitrated as another kind: its own rule starts fresh
-    return cfg, net, max(trained, 0) if as_episode is None else as_episode, env_state, running
+    return cfg, net, max(ckpt.member_episode(member), 0) if as_episode is None else as_episode, env_state, running
 
 
 def _say_overrides(run: str | Path, task: str | None, agent: str | None, seed: int, cfg: TrainConfig) -> None:
     """With a run, an agent kind or task other than the run's is allowed but said."""
     if agent not in (None, cfg.agent.agent):
-        print(f"note: {run} trained {cfg.agent.agent}; recording its networks arbitrated as {agent} "
-              f"(--agent {agent})", file=sys.stderr)
+        say(f"note: {run} trained {cfg.agent.agent}; recording its networks arbitrated as {agent} "
+            f"(--agent {agent})")
     if task not in (None, cfg.task):
-        print(f"note: {run} trained on {cfg.task}; recording on {task} (--task) with fresh environments "
-              f"seeded from --seed {seed}, not the run's", file=sys.stderr)
+        say(f"note: {run} trained on {cfg.task}; recording on {task} (--task) with fresh environments "
+            f"seeded from --seed {seed}, not the run's")
 
 
 def rollout_env(cfg: TrainConfig, seed: int, env_state: dict[str, Any] | None) -> VecEnv:
     """The run's environments where training left off (``env_state``), else fresh ones seeded from ``seed``."""
-    from apac_mj.run.trainer import training_env
-
     if env_state is None:
         return VecEnv(cfg.task, [seed + k for k in range(len(cfg.seeds))], actuation=cfg.actuation,
                       overrides=dict(cfg.task_overrides))
@@ -139,7 +124,5 @@ def rollout_env(cfg: TrainConfig, seed: int, env_state: dict[str, Any] | None) -
 
 
 def _frames(path: Path) -> int:
-    from apac_mj.recording.recording import RENDER, read_recording
-
     entities, _, _ = read_recording(path)
     return len(entities[RENDER].times["frame"])

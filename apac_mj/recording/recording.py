@@ -14,7 +14,6 @@ several episodes play one after another.
 from __future__ import annotations
 
 import dataclasses
-import subprocess
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -24,6 +23,8 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from apac_mj.kinematics import DEFAULT_ORIGIN, motion_function
+from apac_mj.run.rollout import Hook
+from apac_mj.run.run_dir import git_commit
 from apac_mj.suite.render import Renderer, encode_jpeg
 
 APPLICATION_ID = "apac_mj"
@@ -143,17 +144,6 @@ def estimate_error(rec: StepRecord) -> float:
 def forward_model_error(rec: StepRecord) -> float:
     """Distance between the predicted and the true end-effector (cm); NaN without a prediction."""
     return float(np.linalg.norm(rec.predicted_arm[:2] - rec.true_arm[:2]))
-
-
-def git_commit(repo: Path | None = None) -> str:
-    """The checkout's commit (with ``-dirty`` for local changes), or "unknown"."""
-    repo = repo or Path(__file__).resolve().parent.parent
-    try:
-        out = subprocess.run(["git", "describe", "--always", "--dirty", "--abbrev=40"], cwd=repo,
-                             capture_output=True, text=True, timeout=10, check=True)
-        return out.stdout.strip() or "unknown"
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
 
 
 def default_blueprint(plane_size: Sequence[float] = (30.0, 30.0)) -> rrb.Blueprint:
@@ -505,12 +495,13 @@ def recording_for_env(path: str | Path, env: Any, config: dict[str, Any] | None 
 
 
 # -- hooks for training and rollouts ----------------------------------------------------------
-class EpisodeRecorder:
-    """Records every ``record_every``-th episode of one member through the rollout hooks.
+class EpisodeRecorder(Hook):
+    """Records every ``record_every``-th episode of one member: a hook of the episode loop.
 
-    Pass :meth:`on_episode_start` and :meth:`on_step` as the hooks of
-    :func:`apac_mj.run.trainer.train` (``record_every=N`` does it) or of a rollout
-    loop built on :func:`apac_mj.run.rollout.agent_step`. Only recorded episodes
+    Pass it in the ``hooks`` of :func:`apac_mj.run.trainer.train` (``apac-mj train
+    --record-every N`` does it), :func:`apac_mj.run.evaluate.evaluate` or
+    :class:`apac_mj.run.rollout.EpisodeLoop`, and close it (or use it as a context manager)
+    when the loop is done. Only recorded episodes
     are rendered. Episode ``e`` counts training episodes (babbling negative):
     the member's reset count minus ``config["agent"]["babbling_episodes"]``.
 

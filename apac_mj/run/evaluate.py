@@ -27,23 +27,20 @@ target) and ``eval/summary.json``; returns the summary.
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
 import pandas as pd
-import torch
 from tqdm.auto import tqdm
 
-from apac_mj.run import checkpoint
 from apac_mj.agent.agent import Agent
 from apac_mj.types import HABIT_COST, PLANNING_COST  # the time cost of one action (re-exported here)
-from apac_mj.config import TrainConfig, task_spec, train_config_from_dict
-from apac_mj.util.files import atomic_write_parquet
-from apac_mj.kinematics import Geometry, angle_grid, motion_function
+from apac_mj.config import TrainConfig, task_spec
+from apac_mj.kinematics import angle_grid, motion_function
 from apac_mj.kinds import arbitrator_for, get as get_kind
-from apac_mj.run.rollout import EpisodeLoop, OnEpisodeStart, OnStep, running_statistics
+from apac_mj.run.rollout import EpisodeLoop, Hook, OnEpisodeStart, OnStep, as_hooks
+from apac_mj.run.run_dir import RunDir, load_run
 from apac_mj.suite.task_spec import TaskSpec
 from apac_mj.suite.vec_env import VecEnv
 
@@ -54,55 +51,16 @@ COLUMNS = ("seed", "target_index", "target_x", "target_y", "success", "steps", "
            "planning_actions", "time_cost", "judged_reached", "estimate_error")
 
 
-def load_run(run_dir: Path, device: str | None = None) -> tuple[TrainConfig, Agent, dict[str, Any]]:
-    """The run's config, its agent with the last checkpoint's weights, and the checkpoint."""
-    run_dir = Path(run_dir)
-    path = run_dir / "config.json"
-    if not path.is_file():
-        raise FileNotFoundError(not_a_run_dir(run_dir, "evaluate"))
-    d = json.loads(path.read_text())
-    d.pop("git_commit", None)
-    cfg = train_config_from_dict(d)
-    if device is not None:
-        cfg.device = device
-    from apac_mj.run.trainer import check_device
-
-    check_device(cfg.device)  # a missing GPU: a clear error before anything is loaded
-    ckpt = checkpoint.load_run_checkpoint(run_dir, required=("agent", "env"), warn=warn_user)
-    agent = Agent(cfg.agent, list(cfg.seeds), device=cfg.device, precision=cfg.precision,
-                  geometry=Geometry.from_spec(task_spec(cfg)))
-    agent.load_state_dict(ckpt["agent"])
-    return cfg, agent, ckpt
-
-
-def not_a_run_dir(path: Path, command: str) -> str:
-    """Why ``path`` is not a run directory; for a grid's results directory, its cells to choose from."""
-    from apac_mj.experiments.results import CELL_FILE
-
-    path = Path(path)
-    if not path.is_dir():
-        return f"{path} does not exist"
-    cells = sorted(p.parent.name for p in path.glob(f"*/{CELL_FILE}") if (p.parent / "config.json").is_file())
-    if cells:
-        return (f"{path} is a grid's results directory, not a run directory; {command} one of its cells: "
-                + ", ".join(str(path / c) for c in cells))
-    return f"{path} is not a run directory (no config.json); train one with apac-mj train"
-
-
-def warn_user(message: str) -> None:
-    import sys
-
-    print(message, file=sys.stderr, flush=True)
-
-
 def evaluate(run_dir: str | Path, protocols: Sequence[str] = ("grid", "occluded"), region: str | None = None,
              device: str | None = None, progress: bool = False, on_step: OnStep | None = None,
-             on_episode_start: OnEpisodeStart | None = None, limit: int | None = None) -> dict[str, Any]:
+             on_episode_start: OnEpisodeStart | None = None, limit: int | None = None,
+             hooks: Sequence[Hook] = ()) -> dict[str, Any]:
     """Run the frozen-network ``protocols``; write eval/*.parquet and eval/summary.json; return the summary.
 
     ``region`` ("test" or "train") restricts the targets of every protocol to
     that part of the task's region split (``generalization`` implies "test").
     ``limit`` keeps only the first ``limit`` targets per member (quick checks).
+    ``hooks`` (then the plain ``on_step`` and ``on_episode_start`` functions) see every frozen episode.
     """
     unknown = [p for p in protocols if p not in PROTOCOLS]
     if unknown or not protocols:
@@ -111,14 +69,14 @@ def evaluate(run_dir: str | Path, protocols: Sequence[str] = ("grid", "occluded"
         raise ValueError(f"limit must be >= 1, got {limit}")
     if region not in (None, "test", "train"):
         raise ValueError(f"region must be 'test' or 'train', got {region!r}")
-    run_dir = Path(run_dir)
-    cfg, agent, ckpt = load_run(run_dir, device)
+    run = RunDir(run_dir)
+    cfg, agent, ckpt = load_run(run.path, device)
     spec = task_spec(cfg)
-    lengths = np.stack([m["task"]["lengths"].numpy() for m in ckpt["env"]["members"]])
-    own = [m["task"]["static_target"] for m in ckpt["env"]["members"]]
-    summary = _read_summary(run_dir)
-    summary.update(run_dir=str(run_dir), agent=cfg.agent.agent, task=cfg.task, seeds=list(cfg.seeds),
-                   finished=(run_dir / "DONE").is_file())
+    lengths, own = ckpt.member_lengths(), ckpt.member_targets()
+    hooks = as_hooks(hooks, on_step, on_episode_start)
+    summary = run.eval_summary()
+    summary.update(run_dir=str(run.path), agent=cfg.agent.agent, task=cfg.task, seeds=list(cfg.seeds),
+                   finished=run.finished())
     for protocol in protocols:
         kind = get_kind(cfg.agent.agent)
         if protocol == "occluded" and not kind.acts_occluded:
@@ -129,15 +87,13 @@ def evaluate(run_dir: str | Path, protocols: Sequence[str] = ("grid", "occluded"
         targets = evaluation_targets(spec, lengths, own, grid_only=protocol == "generalization", region=reg)
         targets = [t[:limit] for t in targets] if limit is not None else targets
         rows = run_protocol(cfg, agent, spec, lengths, targets, occluded=protocol == "occluded",
-                            progress=progress, on_step=on_step, on_episode_start=on_episode_start,
-                            running=running_statistics(ckpt))
+                            progress=progress, hooks=hooks, running=ckpt.running_statistics())
         df = pd.DataFrame(rows)
         if protocol == "occluded":
             df = df.drop(columns=["path_x", "path_y"])
-        atomic_write_parquet(run_dir / "eval" / f"{protocol}.parquet", df)
+        run.write_eval(protocol, df)
         summary.setdefault("protocols", {})[protocol] = summarize(df, spec.zone_radius)
-    text = json.dumps(summary, indent=2) + "\n"
-    checkpoint.atomic_write_bytes(run_dir / "eval" / "summary.json", lambda f: f.write(text.encode()))
+    run.write_eval_summary(summary)
     return summary
 
 
@@ -184,16 +140,15 @@ def _eval_env(cfg: TrainConfig, spec: TaskSpec, lengths: np.ndarray, occluded: b
 
 
 def run_protocol(cfg: TrainConfig, agent: Agent, spec: TaskSpec, lengths: np.ndarray, targets: list[np.ndarray],
-                 occluded: bool, progress: bool = False, on_step: OnStep | None = None,
-                 on_episode_start: OnEpisodeStart | None = None,
+                 occluded: bool, progress: bool = False, hooks: Sequence[Hook] = (),
                  running: dict[str, Any] | None = None) -> list[dict[str, Any]]:
     """Episode ``i`` of every member goes to its ``targets[k][i]``; all members side by side.
 
     The arbitrator and the integrator start from ``running`` (the checkpoint's running statistics,
-    :func:`apac_mj.run.rollout.running_statistics`) and keep them frozen, like the networks."""
+    :meth:`apac_mj.run.run_dir.RunCheckpoint.running_statistics`) and keep them frozen, like the networks."""
     env = _eval_env(cfg, spec, lengths, occluded)
-    episodes = EpisodeLoop(agent, arbitrator_for(cfg.agent), env, zone_radius=spec.zone_radius,
-                           on_step=on_step, on_episode_start=on_episode_start, adapt=False)
+    episodes = EpisodeLoop(agent, arbitrator_for(cfg.agent), env, zone_radius=spec.zone_radius, hooks=hooks,
+                           adapt=False)
     episodes.load_state_dict(running or {})
     counts = np.array([len(t) for t in targets])
     rows = []
@@ -268,10 +223,3 @@ def _judged_summary(df: pd.DataFrame) -> dict[str, Any]:
     judged = df[df.judged_reached]
     return {"judged_reached_rate": float(df.judged_reached.mean()),
             "final_distance_judged_mean": float(judged.final_distance.mean()) if len(judged) else None}
-
-
-def _read_summary(run_dir: Path) -> dict[str, Any]:
-    path = run_dir / "eval" / "summary.json"
-    return json.loads(path.read_text()) if path.is_file() else {}
-
-

@@ -12,13 +12,15 @@ without), build ``s_{t+1}`` and compute this transition's TD error ``delta``
 on the executable part of the command (:meth:`Agent.executable`, what the
 critic and the forward model learn from)
 (the arbitrator's reliability signal for the next step). It returns a
-:class:`StepInfo`, the per-step record that hooks receive::
+:class:`StepInfo`, the per-step record that a :class:`Hook` receives::
 
-    on_step(info: StepInfo, vec_env: VecEnv) -> None
-    on_episode_start(members: np.ndarray, vec_env: VecEnv) -> None   # members: [E] bool, just reset
+    class MyHook(Hook):
+        def on_episode_start(self, members: np.ndarray, vec_env: VecEnv) -> None: ...  # [E] bool, just reset
+        def on_step(self, info: StepInfo, vec_env: VecEnv) -> None: ...
 
-Both hooks are accepted by :func:`apac_mj.run.trainer.train`, :func:`apac_mj.run.evaluate.evaluate`
-and the loop itself.
+Hooks are accepted by the loop itself, :func:`apac_mj.run.trainer.train` and
+:func:`apac_mj.run.evaluate.evaluate`; the last two also take the two methods as
+plain functions (``on_step=``, ``on_episode_start=``).
 
 What the agent perceives: with vision, the environment's reward and
 termination; without vision (occluded), the reward and termination of its
@@ -28,7 +30,7 @@ zone"), so nothing true leaks after step 0.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable, Iterator
+from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 import torch
@@ -40,9 +42,41 @@ from apac_mj.suite.vec_env import VecEnv
 from apac_mj.types import ArbitrationContext, Observation, StepInfo
 
 
-#: Hooks: ``on_step(info, vec_env)`` after every step, ``on_episode_start(members [E] bool, vec_env)`` after resets.
+#: A hook's methods as plain functions: ``on_step(info, vec_env)``, ``on_episode_start(members, vec_env)``.
 OnStep = Callable[[StepInfo, VecEnv], None]
 OnEpisodeStart = Callable[[np.ndarray, VecEnv], None]
+
+
+class Hook:
+    """What the episode loop calls on its way (SB3's ``BaseCallback`` style): override what you need."""
+
+    def on_episode_start(self, members: np.ndarray, vec_env: VecEnv) -> None:
+        """After the members in ``members`` (``[E]`` bool) were reset."""
+
+    def on_step(self, info: StepInfo, vec_env: VecEnv) -> None:
+        """After every step, once the loop's state is carried past it."""
+
+
+class FunctionHook(Hook):
+    """A hook made of plain functions (either may be None)."""
+
+    def __init__(self, on_step: OnStep | None = None, on_episode_start: OnEpisodeStart | None = None) -> None:
+        self.step_fn, self.start_fn = on_step, on_episode_start
+
+    def on_episode_start(self, members: np.ndarray, vec_env: VecEnv) -> None:
+        if self.start_fn is not None:
+            self.start_fn(members, vec_env)
+
+    def on_step(self, info: StepInfo, vec_env: VecEnv) -> None:
+        if self.step_fn is not None:
+            self.step_fn(info, vec_env)
+
+
+def as_hooks(hooks: Sequence[Hook], on_step: OnStep | None = None,
+             on_episode_start: OnEpisodeStart | None = None) -> list[Hook]:
+    """``hooks``, then the plain functions as one more hook (if any is given)."""
+    plain = [FunctionHook(on_step, on_episode_start)] if on_step is not None or on_episode_start is not None else []
+    return [*hooks, *plain]
 
 
 def observed_state(obs: Observation, device: torch.device) -> torch.Tensor:
@@ -157,29 +191,22 @@ def decision_inputs(arbitrator: Arbitrator) -> dict[str, np.ndarray]:
             for k, v in getattr(arbitrator, "last_inputs", {}).items()}
 
 
-def running_statistics(ckpt: dict[str, Any]) -> dict[str, Any]:
-    """The arbitrator's and the integrator's running statistics in a checkpoint (:meth:`EpisodeLoop.state_dict`;
-    absent in checkpoints from before them)."""
-    return {k: ckpt[k] for k in ("arbitrator", "integrator") if k in ckpt}
-
-
 Override = Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
 
 
 class EpisodeLoop:
     """The one per-member episode loop shared by training, evaluation and recordings.
 
-    :meth:`start` resets members (environment, carried state, noise, the episode-start hook),
+    :meth:`start` resets members (environment, carried state, noise, the hooks' episode start),
     :meth:`act` arbitrates and steps (:func:`agent_step`), :meth:`advance` carries the state past
-    the step and calls the step hook; :meth:`begin` and :meth:`steps` (together :meth:`run_episode`)
+    the step and calls the hooks' step; :meth:`begin` and :meth:`steps` (together :meth:`run_episode`)
     are the frozen episode that evaluation and recordings run.
     """
 
     def __init__(self, agent: Any, arbitrator: Arbitrator, env: VecEnv, zone_radius: float | None = None,
-                 on_step: OnStep | None = None, on_episode_start: OnEpisodeStart | None = None,
-                 adapt: bool = True, integrator: Any = None) -> None:
+                 hooks: Sequence[Hook] = (), adapt: bool = True, integrator: Any = None) -> None:
         self.agent, self.arbitrator, self.env, self.zone_radius = agent, arbitrator, env, zone_radius
-        self.on_step, self.on_episode_start = on_step, on_episode_start
+        self.hooks = _checked(hooks)
         #: The arbitrator's and the integrator's running statistics learn from the steps (training);
         #: False: frozen (tests).
         self.adapt = adapt
@@ -208,8 +235,8 @@ class EpisodeLoop:
         self.integrator.reset(np.asarray(mask, dtype=bool), seen)
         if reset_noise:
             self.agent.noise.reset(torch.as_tensor(mask))
-        if self.on_episode_start is not None:
-            self.on_episode_start(mask.copy(), self.env)
+        for hook in self.hooks:
+            hook.on_episode_start(mask.copy(), self.env)
 
     def act(self, st: EpisodeState, active: np.ndarray, episode: np.ndarray, explore: bool,
             arbitration_episode: np.ndarray | None = None, override: Override | None = None) -> StepInfo:
@@ -232,8 +259,8 @@ class EpisodeLoop:
         st.advance(info, active, counted, next_state)
         if hasattr(self.arbitrator, "observe"):
             self.arbitrator.observe(info, active if counted is None else counted, self.adapt)
-        if self.on_step is not None:
-            self.on_step(info, self.env)
+        for hook in self.hooks:
+            hook.on_step(info, self.env)
 
     def begin(self, members: np.ndarray) -> EpisodeState:
         """A frozen episode's start for ``members``: a fresh carry, their environments reset (noise untouched)."""
@@ -265,6 +292,14 @@ class EpisodeLoop:
         for _ in self.steps(st, members, episode, arbitration_episode, stop_on_terminal):
             pass
         return st
+
+
+def _checked(hooks: Sequence[Hook]) -> list[Hook]:
+    wrong = [type(h).__name__ for h in hooks if not isinstance(h, Hook)]
+    if wrong:
+        raise TypeError(f"hooks must be apac_mj.run.rollout.Hook instances, got {', '.join(wrong)}; "
+                        "pass plain functions as on_step= or on_episode_start=")
+    return list(hooks)
 
 
 def agent_step(agent: Any, vec_env: VecEnv, state: torch.Tensor, episode: np.ndarray, step: np.ndarray,
