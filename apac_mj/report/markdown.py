@@ -28,14 +28,15 @@ def report_md(title: str | None, manifest: dict, metrics: pd.DataFrame, table: p
                      + _key_numbers(table, len(seeds) <= LIST_SEEDS) + _differences(diffs)) + "\n"
 
 
-def _header(title: str | None, manifest: dict, metrics: pd.DataFrame, seeds: list) -> list[str]:
+def _header(title: str | None, manifest: dict, metrics: pd.DataFrame, seeds: list[int]) -> list[str]:
     """Title, the preset's description, what the results hold and how to read the numbers."""
     preset = manifest.get("preset", {})
     n_episodes = int(metrics.loc[metrics["phase"] == "train", "episode"].max()) + 1
     lines = [f"# {title or 'APAC results: ' + str(preset.get('name', 'grid'))}", ""]
     if preset.get("description"):
         lines += [preset["description"], ""]
-    conditions = "; ".join(condition_short(c) + " = " + condition_label(c) for c in condition_order(metrics["condition"]))
+    order = condition_order(metrics["condition"])
+    conditions = "; ".join(f"{condition_short(c)} = {condition_label(c)}" for c in order)
     return lines + [
         f"Agents: {', '.join(AGENT_LABEL[a] for a in agents(metrics))}. Conditions: {conditions}. "
         f"{len(seeds)} seeds, {episodes(n_episodes)} of training per seed.", "",
@@ -64,7 +65,8 @@ def _key_numbers(table: pd.DataFrame, show_seeds: bool) -> list[str]:
     lines = ["## Key numbers", "", head + " paper |", "|---" * (head.count("|")) + "|"]
     for r in table.itertuples():
         row = (f"| {r.figure} | {r.description} ({r.unit}) | {AGENT_LABEL[r.agent]} | {condition_short(r.condition)} "
-               f"| {r.n_seeds} | {_samples(r.samples, r.samples_of)} | {fmt(r.mean)} | {_ci(r.ci95_low, r.ci95_high)} |")
+               f"| {r.n_seeds} | {_samples(r.samples, r.samples_of)} | {fmt(r.mean)} "
+               f"| {_ci(r.ci95_low, r.ci95_high)} |")
         row += f" {r.per_seed} |" if show_seeds else ""
         lines.append(row + f" {r.paper or '-'} |")
     return lines

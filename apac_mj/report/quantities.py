@@ -8,6 +8,7 @@ gives intervals of the key comparisons (APAC vs SPAC success, APAC's habit share
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 import pandas as pd
@@ -250,7 +251,7 @@ def _difference(seed_values: pd.DataFrame, q: str, one: tuple[str, str], other: 
             + (" + Newcombe (pooled counts)" if is_rate(q) else "")}
 
 
-def _rank(order: list[str] | tuple[str, ...]) -> dict[str, int]:
+def _rank(order: Sequence[str]) -> dict[str, int]:
     return {k: i for i, k in enumerate(order)}
 
 

@@ -194,7 +194,8 @@ def _check_report(spec: TaskSpec) -> None:
     for field, key in (("report_label", "label"), ("report_short", "short"), ("report_color", "color")):
         value = getattr(spec, field)
         if not isinstance(value, str) or "\n" in value:
-            raise TaskSpecError(f"task {spec.name!r}: {field} ([report] {key}) must be a one-line string, got {value!r}")
+            raise TaskSpecError(f"task {spec.name!r}: {field} ([report] {key}) must be a one-line string, "
+                                f"got {value!r}")
     if spec.report_color:
         from matplotlib.colors import is_color_like  # only for a task that sets a colour
 
