@@ -120,7 +120,7 @@ def test_use_habit_must_return_one_bool_per_member():
 
 def test_kind_names_appear_only_in_the_registry_and_the_papers_table():
     """No module tests a kind's name: string constants equal to a built-in name live only in kinds.py
-    and in report.py's table of the paper's values (PAPER)."""
+    and in the report's table of the paper's values (PAPER, apac_mj/report/quantities.py)."""
     found = []
     for path in sorted(PACKAGE.rglob("*.py")):
         if path.name == "kinds.py":

@@ -12,11 +12,14 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from scipy import stats
+from scipy import stats as scipy_stats
 
-from apac_mj.experiments import grid
 from apac_mj import report
 from apac_mj.cli import main
+from apac_mj.experiments import grid
+from apac_mj.report import figures, labels, stats
+from apac_mj.report.quantities import judged_reached, key_numbers, per_seed
+from apac_mj.suite.task_spec import TaskSpec, load_task, register_task, unregister_task
 
 FIGURES = ["fig3_training_success.png", "fig4_test.png", "fig5_arbitration.png", "fig6_steps_time.png",
            "fig7_trajectories.png", "fig8_generalization.png", "fig9_occluded.png", "fig10_losses.png",
@@ -75,10 +78,18 @@ def make_results(root: Path, seed: int = 0, seeds=(0, 1, 2), episodes: int = 30)
     return root
 
 
-def _ci(values) -> tuple[float, float, float]:
-    v = np.asarray(values, float)
-    h = stats.t.ppf(0.975, len(v) - 1) * v.std(ddof=1) / math.sqrt(len(v))
-    return v.mean(), v.mean() - h, v.mean() + h
+def t_interval(values, level: float = 0.95) -> tuple[float, float, float]:
+    """Mean and Student-t interval over seeds (NaN bounds with fewer than two values): the interval the
+    report used before issue 11, the reference its bootstrap is checked against."""
+    v = np.asarray([x for x in values if not math.isnan(x)], dtype=float)
+    if v.size < 2:
+        return (float(v.mean()) if v.size else math.nan), math.nan, math.nan
+    half = float(scipy_stats.t.ppf(0.5 + level / 2, v.size - 1) * v.std(ddof=1) / math.sqrt(v.size))
+    return float(v.mean()), float(v.mean()) - half, float(v.mean()) + half
+
+
+def key_table(report_dir: Path) -> pd.DataFrame:
+    return pd.read_csv(report_dir / "key_numbers.csv")
 
 
 @pytest.fixture(scope="module")
@@ -104,14 +115,14 @@ def _row(table: pd.DataFrame, q: str, agent: str, cond: str) -> pd.Series:
 
 def test_test_success_matches_parquet(made) -> None:
     results, out = made
-    table = report.load_key_numbers(out)
+    table = key_table(out)
     md = (out / "report.md").read_text()
     for agent in ("ddpg", "spac", "apac"):
         for cond in ("static_target", "changing_target"):
             df = pd.read_parquet(results / f"{agent}__{cond}" / "eval" / "grid.parquet")
             per = [100 * g["success"].mean() for _, g in df.groupby("seed")]
-            blo, bhi = report.bootstrap_interval(per)
-            w = stats.binomtest(int(df["success"].sum()), len(df)).proportion_ci(0.95, method="wilson")
+            blo, bhi = stats.bootstrap_interval(per)
+            w = scipy_stats.binomtest(int(df["success"].sum()), len(df)).proportion_ci(0.95, method="wilson")
             m, lo, hi = np.mean(per), min(blo, 100 * w.low), max(bhi, 100 * w.high)
             r = _row(table, "test_success", agent, cond)
             assert (r["mean"], r["ci95_low"], r["ci95_high"]) == pytest.approx((m, lo, hi))
@@ -120,7 +131,7 @@ def test_test_success_matches_parquet(made) -> None:
 
 def test_training_and_arbitration_match_parquet(made) -> None:
     results, out = made
-    table = report.load_key_numbers(out)
+    table = key_table(out)
     df = pd.read_parquet(results / "apac__changing_target" / "metrics.parquet")
     late = df[(df["phase"] == "train") & (df["episode"] >= 24)]  # last 20% of 30 episodes
     per_seed = [100 * g["success"].mean() for _, g in late.groupby("seed")]
@@ -134,7 +145,7 @@ def test_training_and_arbitration_match_parquet(made) -> None:
 def test_test_time_habit_share_and_estimate_error_match_parquet(made) -> None:
     """Fig. 11's quantities: per seed from the test grid's rows, then the mean over seeds."""
     results, out = made
-    table = report.load_key_numbers(out)
+    table = key_table(out)
     df = pd.read_parquet(results / "apac__changing_target" / "eval" / "grid.parquet")
     per = df.groupby("seed")
     time = [g["time_cost"].mean() for _, g in per]
@@ -153,7 +164,7 @@ def test_test_time_habit_share_and_estimate_error_match_parquet(made) -> None:
 
 def test_occluded_and_generalization_match_parquet(made) -> None:
     results, out = made
-    table = report.load_key_numbers(out)
+    table = key_table(out)
     occ = pd.read_parquet(results / "spac__changing_target_changing_kinematics" / "eval" / "occluded.parquet")
     r = _row(table, "occluded_distance", "spac", "changing_target_changing_kinematics")
     assert r["mean"] == pytest.approx(occ.groupby("seed")["final_distance"].mean().mean())
@@ -184,7 +195,7 @@ def test_intervals_respect_the_quantity(made) -> None:
     """Rates stay in [0, 100] and distances >= 0 however few the seeds; rates contain the pooled count's
     Wilson interval (computed here by scipy)."""
     results, out = made
-    table = report.load_key_numbers(out)
+    table = key_table(out)
     for r in table.itertuples():
         if math.isnan(r.ci95_low):
             continue
@@ -194,7 +205,7 @@ def test_intervals_respect_the_quantity(made) -> None:
         if r.unit in ("cm", "steps", "habit-step units"):
             assert r.ci95_low >= 0, r
     df = pd.read_parquet(results / "apac__changing_target" / "eval" / "grid.parquet")
-    wilson = stats.binomtest(int(df["success"].sum()), len(df)).proportion_ci(0.95, method="wilson")
+    wilson = scipy_stats.binomtest(int(df["success"].sum()), len(df)).proportion_ci(0.95, method="wilson")
     r = _row(table, "test_success", "apac", "changing_target")
     assert r["ci95_low"] <= 100 * wilson.low + 1e-9 and r["ci95_high"] >= 100 * wilson.high - 1e-9
     assert r["samples"] == len(df) and r["per_seed"].count(":") == 3
@@ -202,26 +213,26 @@ def test_intervals_respect_the_quantity(made) -> None:
 
 def test_extreme_rates_and_distances_stay_in_range() -> None:
     """What the Student-t interval got wrong (issue 11): [97.05, 101.83] %, [-2.56, 7.00] %, [-2.02, 13.59] cm."""
-    assert report.t_interval([100, 100, 96.0])[2] > 100  # the old interval leaves the range
-    m, lo, hi = report.interval([100, 100, 96.0], k=[100, 100, 96], n=[100, 100, 100])
+    assert t_interval([100, 100, 96.0])[2] > 100  # the old interval leaves the range
+    m, lo, hi = stats.interval([100, 100, 96.0], k=[100, 100, 96], n=[100, 100, 100])
     assert m == pytest.approx(98.6667) and 0 <= lo < m and hi == 100
-    m, lo, hi = report.interval([0.0, 0.0, 4.0], k=[0, 0, 4], n=[100, 100, 100])
+    m, lo, hi = stats.interval([0.0, 0.0, 4.0], k=[0, 0, 4], n=[100, 100, 100])
     assert lo == 0 and hi > 4 / 3
-    assert report.t_interval([0.1, 0.2, 11.0])[1] < 0
-    m, lo, hi = report.interval([0.1, 0.2, 11.0])
+    assert t_interval([0.1, 0.2, 11.0])[1] < 0
+    m, lo, hi = stats.interval([0.1, 0.2, 11.0])
     assert 0.1 <= lo <= hi <= 11.0
-    m, lo, hi = report.interval([100.0], k=[100], n=[100])  # one seed: the rate still has an interval
-    assert lo == pytest.approx(100 * stats.binomtest(100, 100).proportion_ci(method="wilson").low) and hi == 100
-    assert math.isnan(report.interval([3.0])[1])  # a single distance has none
+    m, lo, hi = stats.interval([100.0], k=[100], n=[100])  # one seed: the rate still has an interval
+    assert lo == pytest.approx(100 * scipy_stats.binomtest(100, 100).proportion_ci(method="wilson").low) and hi == 100
+    assert math.isnan(stats.interval([3.0])[1])  # a single distance has none
 
 
 def test_bootstrap_matches_the_t_interval_for_many_normal_seeds() -> None:
     v = np.random.default_rng(1).normal(10, 2, size=400)
-    _, tlo, thi = report.t_interval(v)
-    blo, bhi = report.bootstrap_interval(v)
+    _, tlo, thi = t_interval(v)
+    blo, bhi = stats.bootstrap_interval(v)
     assert blo == pytest.approx(tlo, abs=0.05) and bhi == pytest.approx(thi, abs=0.05)
     k1, n1, k2, n2 = 56, 70, 48, 80  # Newcombe (1998), example (method 10): 0.0524 to 0.3339
-    assert report.newcombe_interval(k1, n1, k2, n2) == pytest.approx((0.0524, 0.3339), abs=5e-4)
+    assert stats.newcombe_interval(k1, n1, k2, n2) == pytest.approx((0.0524, 0.3339), abs=5e-4)
 
 
 def test_few_samples_are_counted(made, tmp_path) -> None:
@@ -236,7 +247,7 @@ def test_few_samples_are_counted(made, tmp_path) -> None:
     shutil.copytree(results, copy)
     df.to_parquet(copy / "ddpg__changing_target" / "eval" / "grid.parquet")
     out = report.write_report(copy, draw=False)
-    r = _row(report.load_key_numbers(out), "test_steps_to_reach", "ddpg", "changing_target")
+    r = _row(key_table(out), "test_steps_to_reach", "ddpg", "changing_target")
     assert (r["samples"], r["samples_of"], r["n_seeds"]) == (1, 36, 1)
     assert "| 1 | 1* of 36 |" in (out / "report.md").read_text()
 
@@ -262,7 +273,7 @@ def test_figures_show_the_tables_numbers(made, tmp_path, monkeypatch) -> None:
 
     results, _ = made
     bars, hlines, figs = [], [], []
-    real_bar, real_axhline, real_close = matplotlib.axes.Axes.bar, matplotlib.axes.Axes.axhline, report.plt.close
+    real_bar, real_axhline, real_close = matplotlib.axes.Axes.bar, matplotlib.axes.Axes.axhline, figures.plt.close
 
     def bar(self, x, height, *a, yerr=None, **k):
         bars.append((np.asarray(height, float), np.asarray(yerr, float), k.get("label")))
@@ -286,9 +297,9 @@ def test_figures_show_the_tables_numbers(made, tmp_path, monkeypatch) -> None:
 
     monkeypatch.setattr(matplotlib.axes.Axes, "bar", bar)
     monkeypatch.setattr(matplotlib.axes.Axes, "axhline", axhline)
-    monkeypatch.setattr(report.plt, "close", close)
+    monkeypatch.setattr(figures.plt, "close", close)
     out = report.write_report(results, tmp_path / "rep")
-    table = report.load_key_numbers(out)
+    table = key_table(out)
     sel = table[(table["quantity"] == "test_success") & (table["condition"] == "static_target")]
     height, yerr, label = bars[0]  # first bar group of Fig. 4: DDPG over the conditions
     r = sel[sel["agent"] == "ddpg"].iloc[0]
@@ -310,19 +321,122 @@ def test_no_typos_and_no_empty_panels(tmp_path, capsys) -> None:
     md = (out / "report.md").read_text()
     assert not (out / "fig8_generalization.png").exists() and "not drawn, these results have no data" in md
     assert "kin.." not in md and "static kinematics" in md
-    assert not set(report.COND_COLOR.values()) & set(report.AGENT_COLOR.values())
-    assert report._episodes(1) == "1 episode"
+    assert labels.episodes(1) == "1 episode"
     with pytest.raises(SystemExit):
         main(["report", "--help"])
     assert "95%%" not in capsys.readouterr().out
 
 
 def test_t_interval() -> None:
-    assert report.t_interval([1.0, 2.0, 3.0]) == pytest.approx((2.0, 2 - 2.4841377, 2 + 2.4841377))
-    m, lo, hi = report.t_interval([5.0])
+    assert t_interval([1.0, 2.0, 3.0]) == pytest.approx((2.0, 2 - 2.4841377, 2 + 2.4841377))
+    m, lo, hi = t_interval([5.0])
     assert m == 5.0 and math.isnan(lo) and math.isnan(hi)
 
 
 def test_report_on_missing_dir_is_a_clear_error(tmp_path, capsys) -> None:
     assert main(["report", str(tmp_path / "nope")]) == 2
     assert "does not exist" in capsys.readouterr().err
+
+
+def test_paper_figures_go_through_the_registry(made, tmp_path) -> None:
+    """The paper's figures are registered FigureSpecs, drawn and listed in the published order; a user's
+    figure comes after them, and a paper figure can be taken out like any other."""
+    results, out = made
+    published = FIGURES[:7] + [FIGURES[8], FIGURES[7]]  # the scoreboard (Fig. 11) before the losses (Fig. 10)
+    assert [f.file for f in figures.registered_figures()] == published
+    md = (out / "report.md").read_text()
+    where = [md.index(f"]({f})") for f in published]
+    assert where == sorted(where)
+    with pytest.raises(ValueError, match="already registered"):
+        report.register_figure(figures.registered_figures()[0])
+    with pytest.raises(ValueError, match="must end in .png"):
+        report.register_figure(report.FigureSpec("fig.gif", "x", lambda data, path: None))
+    losses = figures.registered_figures()[-1]
+    mine = report.FigureSpec("fig12_mine.png", "Mine.", lambda data, path: path.write_bytes(b"drawn"))
+    report.register_figure(mine)
+    report.unregister_figure(losses.file)
+    try:
+        out2 = report.write_report(results, tmp_path / "rep", draw=False)
+        md = (out2 / "report.md").read_text()
+        assert "fig10_losses.png" not in md and md.index("fig11_scoreboard.png") < md.index("fig12_mine.png")
+    finally:
+        report.unregister_figure(mine.file)
+        report.register_figure(losses)
+    assert [f.file for f in figures.registered_figures()][-1] == "fig10_losses.png"
+    with pytest.raises(KeyError, match="no figure 'fig12_mine.png' is registered"):
+        report.unregister_figure(mine.file)
+
+
+def test_old_results_without_losses_say_fig10_is_not_drawn(made, tmp_path) -> None:
+    import shutil
+
+    results, _ = made
+    copy = tmp_path / "old"
+    shutil.copytree(results, copy, ignore=shutil.ignore_patterns("report"))
+    for f in copy.glob("*/metrics.parquet"):
+        pd.read_parquet(f).drop(columns=[c for c, _ in figures.LOSSES]).to_parquet(f)
+    md = (report.write_report(copy, draw=False) / "report.md").read_text()
+    assert "*Training losses per episode: not drawn, these results have no data for it.*" in md
+
+
+@pytest.fixture
+def user_tasks():
+    """Two user conditions whose names the old colour hash mapped to one colour, and a wider plane for
+    changing_target (a task registered at run time shadows the file of the same name)."""
+    specs = [TaskSpec(name="user_ab", description="User condition AB."), TaskSpec(name="user_ba", steps_per_episode=12)]
+    for spec in specs:
+        register_task(spec)
+    register_task(load_task("changing_target").replace(plane_size=(40.0, 30.0), origin=(20.0, 15.0)), replace=True)
+    yield specs
+    for name in ("user_ab", "user_ba", "changing_target"):
+        unregister_task(name)
+
+
+def test_conditions_are_described_by_their_tasks(user_tasks) -> None:
+    assert sum(map(ord, "user_ab")) % 6 == sum(map(ord, "user_ba")) % 6  # the collision of the old hash
+    colors = labels.condition_colors(["user_ba", "changing_target", "user_ab", "static_target"])
+    assert colors == {"static_target": "tab:purple", "changing_target": "tab:olive",
+                      "user_ab": labels.EXTRA_COLORS[0], "user_ba": labels.EXTRA_COLORS[1]}
+    assert labels.condition_label("user_ab") == "User condition AB." and labels.condition_label("user_ba") == "user_ba"
+    assert labels.condition_short("user_ab") == "user_ab" and labels.condition_short("changing_target") == "cs"
+    assert labels.condition_label("gone") == "gone"  # a task unknown here: its name and the default spec
+    assert labels.condition_spec("gone").plane_size == TaskSpec(name="x").plane_size
+    many = [f"user_{i:02d}" for i in range(len(labels.EXTRA_COLORS) + 1)]
+    assert len(set(labels.condition_colors(many).values())) == len(labels.EXTRA_COLORS)
+
+
+def test_judged_reached_of_old_results_uses_each_tasks_step_limit(user_tasks) -> None:
+    old = pd.DataFrame({"condition": ["user_ba"] * 3 + ["static_target"] * 2, "steps": [11, 12, 30, 29, 30]})
+    assert judged_reached(old).tolist() == [True, False, False, True, False]
+    new = old.assign(judged_reached=[False, True, False, False, True])
+    assert judged_reached(new).tolist() == new["judged_reached"].tolist()
+
+
+def test_planes_and_region_maps_come_from_the_tasks(made, tmp_path, monkeypatch, user_tasks) -> None:
+    """Fig. 7 spans each condition's plane; Fig. 8 maps the region of each geometry present (one map where
+    the conditions agree, as in the paper)."""
+    results, _ = made
+    metrics, tests = grid.load_results(results), grid.load_tests(results)
+    seed_values = per_seed(metrics, tests)
+    data = report.ReportData(results, metrics, tests, seed_values, key_numbers(seed_values))
+    drawn = []
+    monkeypatch.setattr(figures.plt, "close", lambda fig: drawn.append(
+        [(ax.get_title(), ax.get_xlim(), ax.get_ylim()) for ax in fig.axes if ax.get_visible()]))
+    figures.fig_trajectories(data, tmp_path / "fig7.png")
+    limits = {title.split(", ")[1].split(" (")[0]: (x, y) for title, x, y in drawn[-1]}
+    assert limits == {"cs": ((0, 40), (0, 30)), "cc": ((0, 30), (0, 30))}  # static targets are not drawn
+    figures.fig_generalization(data, tmp_path / "fig8.png")
+    maps = [(title, x) for title, x, _ in drawn[-1] if title.endswith("cm")]
+    assert maps == [("ss: reachable area, l = (5.0, 8.0) cm", (0, 30)),
+                    ("cs: reachable area, l = (5.0, 8.0) cm", (0, 40))]
+
+
+def test_the_report_leaves_the_matplotlib_backend_alone_at_import() -> None:
+    import os
+    import subprocess
+    import sys
+
+    code = "import apac_mj.report, matplotlib; print(matplotlib.get_backend())"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         env={**os.environ, "MPLBACKEND": "svg"})
+    assert out.stdout.strip() == "svg"

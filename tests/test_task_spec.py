@@ -24,6 +24,10 @@ size = [40.0, 30.0]
 origin = [20.0, 15.0]
 [region]
 test_y_min = 21.5
+[report]
+label = "a test"
+short = "tc"
+color = "tab:gray"
 """
 
 
@@ -39,7 +43,8 @@ def test_every_key_is_read(tmp_path):
         name="cond", description="a test condition", target_mode="changing", target_region="train",
         zone_radius=0.75, kinematics_mode="changing", link_lengths=(4.0, 9.0), growth_per_step=0.002,
         growth_start_episode=3, vision="occluded", steps_per_episode=12, plane_size=(40.0, 30.0),
-        origin=(20.0, 15.0), region=Region(test_y_min=21.5))
+        origin=(20.0, 15.0), region=Region(test_y_min=21.5), report_label="a test", report_short="tc",
+        report_color="tab:gray")
     assert spec.occluded
 
 
@@ -47,6 +52,7 @@ def test_missing_keys_take_paper_defaults(tmp_path):
     spec = load_task_file(write(tmp_path, ""))
     assert (spec.link_lengths, spec.zone_radius, spec.steps_per_episode) == ((5.0, 8.0), 0.5, 30)
     assert (spec.growth_per_step, spec.growth_start_episode, spec.origin) == (0.001, 100, (15.0, 15.0))
+    assert (spec.report_label, spec.report_short, spec.report_color) == ("", "", "")
 
 
 def test_shipped_task_files():
@@ -65,6 +71,21 @@ def test_shipped_task_files():
     assert noisy.observation_noise_std == noisy.zone_radius
     assert (intermittent.vision, intermittent.vision_seen_probability) == ("intermittent", 0.5)
     assert intermittent.observation_noise_std == 0.0 and load_task("changing_target").observation_noise_std == 0.0
+
+
+def test_shipped_conditions_say_how_the_report_shows_them():
+    """The paper's abbreviations (Fig. 4: target / kinematics, s = static, c = changing) and one colour
+    per condition, none of them an agent kind's."""
+    from apac_mj import kinds
+    from apac_mj.experiments.presets import known_conditions
+
+    specs = [load_task(c) for c in known_conditions()]
+    assert [s.report_short for s in specs[:4]] == ["ss", "sc", "cs", "cc"]
+    assert [s.report_label for s in specs[:4]] == [f"{t} target / {k} kinematics" for t in ("static", "changing")
+                                                   for k in ("static", "changing")]
+    assert all(s.report_short and s.report_color for s in specs)
+    colors = [s.report_color for s in specs]
+    assert len(set(colors)) == len(colors) and not set(colors) & {kinds.get(k).color for k in kinds.names()}
 
 
 @pytest.mark.parametrize("text, std, p", [
@@ -112,6 +133,10 @@ def test_vision_keys_are_read(tmp_path, text, std, p):
     ("[plane]\norigin = [50.0, 15.0]", "origin .* lies outside the plane"),
     ("[region]\ntest_y_min = 'top'", "region.test_y_min must be a finite number"),
     ("[target\nmode = 'static'", "not valid TOML"),
+    ("[report]\ncolour = 'red'", r"unknown key report.colour"),
+    ("[report]\ncolor = 'tab:olvie'", r"report_color \(\[report\] color\) 'tab:olvie' is not a matplotlib colour"),
+    ("[report]\ncolor = 3", "report.color must be a string"),
+    ('[report]\nlabel = "two\\nlines"', r"report_label \(\[report\] label\) must be a one-line string"),
 ])
 def test_bad_file_names_the_problem(tmp_path, text, problem):
     path = write(tmp_path, text)
@@ -152,3 +177,6 @@ def test_tasks_command_lists_every_task_and_shows_one(capsys):
     assert main(["tasks", "--show", "static_target_occluded"]) == 0
     shown = dict(line[2:].split(" = ", 1) for line in capsys.readouterr().out.splitlines())
     assert shown["vision"] == "'occluded'" and shown["origin"] == "(15.0, 15.0)" and shown["joint_range"] == "(0.0, 180.0)"
+    assert main(["tasks", "--show", "changing_target"]) == 0
+    shown = dict(line[2:].split(" = ", 1) for line in capsys.readouterr().out.splitlines())
+    assert (shown["report_short"], shown["report_color"]) == ("'cs'", "'tab:olive'")

@@ -7,7 +7,9 @@ import argparse
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("report", help="figures (PNG) and a markdown summary from a grid's results directory",
                        description="Write the paper's result figures (training success, test success, arbitration, "
-                                   "steps and time, trajectories, generalization, occluded vision) and report.md "
+                                   "steps and time, trajectories, generalization, occluded vision; then the "
+                                   "scoreboard, the losses and any figure registered with "
+                                   "apac_mj.report.register_figure) and report.md "
                                    "with every key number, its 95% interval (bootstrap over seeds; rates also Wilson), the per-seed values, the "
                                    "count behind it, intervals of the key differences and the paper's "
                                    "stated value, into RESULTS_DIR/report/ (or --out).",

@@ -2,7 +2,8 @@
 
 A task file states one condition of the paper's experiments (target
 static/changing, kinematics static/changing, vision perfect/occluded/noisy/
-intermittent, the generalization region) as what differs from the defaults: the field defaults
+intermittent, the generalization region; in its ``[report]`` table, how the report
+names and colours it) as what differs from the defaults: the field defaults
 of :class:`TaskSpec`, the paper's values (its "Experimental Conditions and
 Environment" and Appendix 2 Table 1), documented below. ``apac-mj tasks --show
 NAME`` prints every value of a task. Every key is checked: an unknown key or a
@@ -96,6 +97,15 @@ class TaskSpec:
     origin: tuple[float, float] = (15.0, 15.0)
     #: The generalization split.
     region: Region = Region()
+    #: File key ``[report] label``: how the report's figures and report.md call this condition (empty: its
+    #: description, else its name).
+    report_label: str = ""
+    #: File key ``[report] short``: its short name in the report's tables and axes (the paper's "cs" for
+    #: changing target / static kinematics; empty: its name).
+    report_short: str = ""
+    #: File key ``[report] color``: its matplotlib colour in the report's figures (empty: the first of the
+    #: report's extra colours that no other condition in the report uses).
+    report_color: str = ""
 
     def __post_init__(self) -> None:
         _check_choice(self, "target_mode", ("static", "changing"))
@@ -104,6 +114,7 @@ class TaskSpec:
         _check_choice(self, "vision", VISION_MODES)
         _check_vision(self)
         _check_choice(self, "at_limit", ("clip", "unbounded"))
+        _check_report(self)
         _check_positive(self, "zone_radius", self.zone_radius)
         for k, v in zip(("l1", "l2"), self.link_lengths):
             _check_positive(self, f"link_lengths ({k})", v)
@@ -178,6 +189,21 @@ def _check_vision(spec: TaskSpec) -> None:
                             f"got {p!r}")
 
 
+def _check_report(spec: TaskSpec) -> None:
+    """The ``[report]`` entries are one-line strings, the colour one matplotlib knows."""
+    for field, key in (("report_label", "label"), ("report_short", "short"), ("report_color", "color")):
+        value = getattr(spec, field)
+        if not isinstance(value, str) or "\n" in value:
+            raise TaskSpecError(f"task {spec.name!r}: {field} ([report] {key}) must be a one-line string, "
+                                f"got {value!r}")
+    if spec.report_color:
+        from matplotlib.colors import is_color_like  # only for a task that sets a colour
+
+        if not is_color_like(spec.report_color):
+            raise TaskSpecError(f"task {spec.name!r}: report_color ([report] color) {spec.report_color!r} is not a "
+                                "matplotlib colour (e.g. 'tab:olive', 'navy', '#1f77b4')")
+
+
 def _check_positive(spec: TaskSpec, field: str, value: float) -> None:
     if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
         raise TaskSpecError(f"task {spec.name!r}: {field} must be a positive finite number, got {value!r}")
@@ -198,6 +224,7 @@ _LAYOUT: dict[str, dict[str, str]] = {
     "episode": {"steps": "steps_per_episode"},
     "plane": {"size": "plane_size", "origin": "origin"},
     "region": {"test_y_min": "region"},
+    "report": {"label": "report_label", "short": "report_short", "color": "report_color"},
 }
 _PAIRS = {"link_lengths", "plane_size", "origin", "joint_range"}
 _FLOATS = {"zone_radius", "growth_per_step", "vision_noise_std", "vision_seen_probability"}

@@ -1,0 +1,496 @@
+"""The report's figures: one registry, the paper's figures registered in it like a user's.
+
+A figure is a :class:`FigureSpec`: its file, its caption, ``draw(data, path)`` and ``applies(data)``,
+all reading one :class:`ReportData`. :func:`register_figure` adds one; the paper's (Figs. 3-9, the
+scoreboard Fig. 11 and the losses Fig. 10, in that order) are registered when this module loads, and
+:func:`apac_mj.report.write_report` draws the registry in registration order. Every curve is a mean over
+seeds of a per-seed moving average, every bar the key-number table's mean and 95% interval.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import textwrap
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import matplotlib.pyplot as plt
+import numpy as np
+import pandas as pd
+
+from apac_mj.kinematics import motion_function
+from apac_mj.report.labels import (AGENT_COLOR, AGENT_LABEL, agents, arbitrating, condition_colors, condition_label,
+                                   condition_order, condition_short, condition_spec, episodes)
+from apac_mj.report.quantities import LATE_FRACTION, judged_reached, time_cost
+from apac_mj.report.stats import BOOTSTRAP_SEED, LEVEL
+from apac_mj.suite.task_spec import TaskSpec
+from apac_mj.types import PLANNING_COST
+
+#: Up to this many seeds each seed is drawn as a thin line (and listed in report.md), beyond it a band.
+LIST_SEEDS = 10
+
+
+@dataclasses.dataclass(frozen=True)
+class ReportData:
+    """What a figure is drawn from: the results directory and its tables (:func:`~apac_mj.report.write_report`
+    builds it)."""
+
+    results: Path
+    #: Every cell's metrics.parquet (apac_mj.experiments.results.load_results).
+    metrics: pd.DataFrame
+    #: Every cell's eval/<protocol>.parquet (apac_mj.experiments.results.load_tests).
+    tests: pd.DataFrame
+    #: One row per (quantity, agent, condition, seed) (:func:`apac_mj.report.quantities.per_seed`).
+    seed_values: pd.DataFrame
+    #: The key-number table (:func:`apac_mj.report.quantities.key_numbers`).
+    table: pd.DataFrame
+
+    @property
+    def protocols(self) -> set[str]:
+        """The test protocols the results hold ("grid", "occluded", "generalization")."""
+        return set(self.tests["protocol"]) if "protocol" in self.tests else set()
+
+
+@dataclasses.dataclass(frozen=True)
+class FigureSpec:
+    """A figure of the report (:func:`register_figure`), listed in report.md with its caption."""
+
+    #: File name in the report directory (e.g. "fig12_my_figure.png").
+    file: str
+    caption: str
+    #: ``draw(data, path)`` writes the figure to ``path``.
+    draw: Callable[[ReportData, Path], object]
+    #: ``applies(data)``: these results hold something to draw (else the figure is skipped, and said so).
+    applies: Callable[[ReportData], bool] = lambda data: True
+
+
+_FIGURES: dict[str, FigureSpec] = {}
+
+
+def register_figure(spec: FigureSpec, replace: bool = False) -> FigureSpec:
+    """Add a figure to every report written from now on (in this process), after those already registered;
+    ``replace=True`` redefines a registered one in its place."""
+    if spec.file in _FIGURES and not replace:
+        raise ValueError(f"a figure {spec.file!r} is already registered (pass replace=True to redefine it)")
+    if not spec.file.endswith((".png", ".svg", ".pdf")):
+        raise ValueError(f"figure file must end in .png, .svg or .pdf, got {spec.file!r}")
+    if not (callable(spec.draw) and callable(spec.applies)):
+        raise ValueError(f"figure {spec.file!r}: draw and applies must be callable")
+    _FIGURES[spec.file] = spec
+    return spec
+
+
+def unregister_figure(file: str) -> None:
+    """Remove a registered figure (the paper's included) from the reports written from now on."""
+    if file not in _FIGURES:
+        raise KeyError(f"no figure {file!r} is registered; registered: {', '.join(_FIGURES) or 'none'}")
+    del _FIGURES[file]
+
+
+def registered_figures() -> list[FigureSpec]:
+    """Every registered figure, in the order a report draws and lists them."""
+    return list(_FIGURES.values())
+
+
+# -- drawing helpers -------------------------------------------------------------------
+
+def _train(metrics: pd.DataFrame) -> pd.DataFrame:
+    """The main study's training episodes (no babbling, no generalization cells)."""
+    return metrics[(metrics["phase"] == "train") & (metrics["region"] == "all")]
+
+
+def _seed_curves(frame: pd.DataFrame, column: str, window: int) -> pd.DataFrame:
+    """Per-seed moving average of ``column`` over episodes: index episode, one column per seed."""
+    wide = frame.pivot_table(index="episode", columns="seed", values=column, aggfunc="mean").sort_index()
+    return wide.astype(float).rolling(window, min_periods=1).mean()
+
+
+def _smooth_band(frame: pd.DataFrame, column: str, window: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per-seed moving average of ``column``, then the mean over seeds and a 95% percentile-bootstrap
+    band over seeds (inside the range of the seeds' values; NaN with one seed)."""
+    wide = _seed_curves(frame, column, window)
+    values = wide.to_numpy()
+    mean = np.nanmean(values, axis=1)
+    if values.shape[1] < 2:
+        return wide.index.to_numpy(), mean, np.full_like(mean, np.nan), np.full_like(mean, np.nan)
+    rng = np.random.default_rng(BOOTSTRAP_SEED)
+    boot = np.stack([np.nanmean(values[:, rng.integers(0, values.shape[1], values.shape[1])], axis=1)
+                     for _ in range(200)])
+    lo, hi = np.nanquantile(boot, [0.5 - LEVEL / 2, 0.5 + LEVEL / 2], axis=0)
+    return wide.index.to_numpy(), mean, lo, hi
+
+
+def _window(metrics: pd.DataFrame) -> int:
+    return max(1, int(metrics["episode"].max() + 1) // 25)
+
+
+def _line(ax: plt.Axes, frame: pd.DataFrame, column: str, window: int, label: str, color: str,
+          scale: float = 1.0, ls: str = "-") -> None:
+    """Mean over seeds (bold) with each seed as a thin line (up to LIST_SEEDS seeds), else a bootstrap band."""
+    x, m, lo, hi = _smooth_band(frame, column, window)
+    ax.plot(x, scale * m, color=color, label=label, lw=1.6, ls=ls)
+    wide = _seed_curves(frame, column, window)
+    if wide.shape[1] <= LIST_SEEDS:
+        for seed in wide.columns:
+            ax.plot(wide.index, scale * wide[seed], color=color, lw=0.6, alpha=0.35, ls=ls)
+    else:
+        ax.fill_between(x, scale * lo, scale * hi, color=color, alpha=0.2, lw=0)
+
+
+def _band_words(metrics: pd.DataFrame) -> str:
+    """What the thin lines or the band around a curve are."""
+    return ("thin lines: single seeds" if metrics["seed"].nunique() <= LIST_SEEDS
+            else "band: 95% bootstrap interval over seeds")
+
+
+def _save(fig: plt.Figure, path: Path, title: str) -> Path:
+    """Suptitle wrapped to the figure's width (nothing cut off), constrained layout, 110 dpi."""
+    width_in = fig.get_size_inches()[0]
+    fig.suptitle(textwrap.fill(title, width=max(40, int(width_in * 11))), fontsize=11)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def _axes(nrows: int, ncols: int, w: float = 4.2, h: float = 3.4) -> np.ndarray:
+    fig, axes = plt.subplots(nrows, ncols, figsize=(w * ncols, h * nrows), squeeze=False, layout="constrained")
+    return axes
+
+
+def _style(ax: plt.Axes, title: str, xlabel: str, ylabel: str, ylim: tuple[float, float] | None = None) -> None:
+    """Title (wrapped to the panel's width), labels, grid and legend of one panel."""
+    width_in = ax.get_position().width * ax.figure.get_size_inches()[0]
+    width = max(20, int(width_in * 12))
+    ax.set_title("\n".join(textwrap.fill(line, width=width) for line in title.split("\n")), fontsize=10)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    if ylim:
+        ax.set_ylim(*ylim)
+    ax.grid(alpha=0.3)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=7)
+
+
+def _plane(ax: plt.Axes, spec: TaskSpec) -> None:
+    """Equal axes over the task's plane [0, w] x [0, h] (cm)."""
+    ax.set_aspect("equal")
+    ax.set_xlim(0, spec.plane_size[0])
+    ax.set_ylim(0, spec.plane_size[1])
+
+
+def _hide_unused(axes: np.ndarray, used_per_row: Sequence[int]) -> None:
+    for r, used in enumerate(used_per_row):
+        for ax in axes[r, used:]:
+            ax.set_visible(False)
+
+
+def _bars(ax: plt.Axes, table: pd.DataFrame, seed_values: pd.DataFrame, quantity: str, conds: list[str],
+          agents_: list[str]) -> None:
+    """Grouped bars (x: condition, one bar per agent): the table's mean and 95% interval, unclipped (the
+    intervals respect the quantity's range), with each seed's value as a dot."""
+    width = 0.8 / max(len(agents_), 1)
+    sel = table[table["quantity"] == quantity]
+    seeds = seed_values[seed_values["quantity"] == quantity]
+    for k, agent in enumerate(agents_):
+        rows = [sel[(sel["agent"] == agent) & (sel["condition"] == c)] for c in conds]
+        mean = np.array([r["mean"].iloc[0] if len(r) else np.nan for r in rows])
+        lo = np.array([r["ci95_low"].iloc[0] if len(r) else np.nan for r in rows])
+        hi = np.array([r["ci95_high"].iloc[0] if len(r) else np.nan for r in rows])
+        err = np.nan_to_num(np.vstack([mean - lo, hi - mean]))
+        x = np.arange(len(conds)) + (k - (len(agents_) - 1) / 2) * width
+        ax.bar(x, mean, width, yerr=err, capsize=3, color=AGENT_COLOR[agent], label=AGENT_LABEL[agent], alpha=0.85)
+        for xi, r in zip(x, rows):  # the count behind a mean over some of the samples (e.g. reached targets)
+            if len(r) and pd.notna(r["samples_of"].iloc[0]):
+                ax.annotate(f"{int(r['samples'].iloc[0])}/{int(r['samples_of'].iloc[0])}", (xi, 0), ha="center",
+                            va="bottom", fontsize=7, rotation=90, xytext=(0, 2), textcoords="offset points")
+        for xi, cond in zip(x, conds):
+            v = seeds[(seeds["agent"] == agent) & (seeds["condition"] == cond)]["value"].dropna().to_numpy()
+            jitter = np.linspace(-width / 4, width / 4, len(v)) if len(v) > 1 else np.zeros(len(v))
+            ax.scatter(xi + jitter, v, s=9, color="black", zorder=3, label="single seeds" if k == 0 and
+                       cond == conds[0] and len(v) else None)
+    ax.set_xticks(np.arange(len(conds)), [condition_short(c) for c in conds])
+
+
+def _table_mean(table: pd.DataFrame, quantity: str, agent: str, cond: str) -> float:
+    sel = table[(table["quantity"] == quantity) & (table["agent"] == agent) & (table["condition"] == cond)]
+    return float(sel["mean"].iloc[0]) if len(sel) else math.nan
+
+
+# -- the paper's figures ---------------------------------------------------------------
+
+def fig_training_success(data: ReportData, path: Path) -> Path:
+    """Fig. 3: success rate during training per episode; top: per agent, bottom: per condition."""
+    train = _train(data.metrics)
+    agents_, conds, w = agents(train), condition_order(train["condition"]), _window(train)
+    colors = condition_colors(data.metrics["condition"])
+    axes = _axes(2, max(len(agents_), len(conds)))
+    for i, agent in enumerate(agents_):
+        ax = axes[0, i]
+        for cond in conds:
+            sel = train[(train["agent"] == agent) & (train["condition"] == cond)]
+            if len(sel):
+                _line(ax, sel, "success", w, condition_short(cond) + ": " + condition_label(cond), colors[cond], 100)
+        _style(ax, f"{AGENT_LABEL[agent]} (colour: condition)", "training episode", "success rate (%)",
+               ylim=(-2, 102))
+    for j, cond in enumerate(conds):
+        ax = axes[1, j]
+        for agent in agents_:
+            sel = train[(train["agent"] == agent) & (train["condition"] == cond)]
+            if len(sel):
+                _line(ax, sel, "success", w, AGENT_LABEL[agent], AGENT_COLOR[agent], 100)
+        _style(ax, f"{condition_label(cond)} (colour: agent)", "training episode", "success rate (%)",
+               ylim=(-2, 102))
+    _hide_unused(axes, [len(agents_), len(conds)])
+    return _save(axes[0, 0].figure, path, f"Fig. 3: training success (moving average over {episodes(w)}; "
+                                          f"bold: mean over seeds, {_band_words(train)})")
+
+
+def fig_test(data: ReportData, path: Path) -> Path:
+    """Fig. 4: test success rate and mean steps to reach, per agent and condition."""
+    sel = data.table[data.table["quantity"] == "test_success"]
+    agents_, conds = agents(sel), condition_order(sel["condition"])
+    axes = _axes(1, 2, w=5.5)
+    _bars(axes[0, 0], data.table, data.seed_values, "test_success", conds, agents_)
+    _style(axes[0, 0], "test success rate", "condition (target/kinematics: s = static, c = changing)",
+           "success rate (%)", ylim=(0, 105))
+    _bars(axes[0, 1], data.table, data.seed_values, "test_steps_to_reach", conds, agents_)
+    _style(axes[0, 1], "mean steps to reach (reached targets only; at the foot: reached/tested)",
+           "condition (target/kinematics: s = static, c = changing)", "action steps")
+    return _save(axes[0, 0].figure, path, "Fig. 4: frozen-network tests (bars: mean over seeds with the 95% "
+                                          "interval of report.md; dots: single seeds)")
+
+
+def fig_arbitration(data: ReportData, path: Path) -> Path:
+    """Fig. 5: habitual vs planning actions per episode, per condition (one row per arbitrating kind: APAC)."""
+    main = _train(data.metrics)
+    arbitrating_kinds = arbitrating(main)
+    sel_all = main[main["agent"].isin(arbitrating_kinds)]
+    conds, w = condition_order(sel_all["condition"]), _window(sel_all)
+    axes = _axes(max(len(arbitrating_kinds), 1), max(len(conds), 1))
+    for i, agent in enumerate(arbitrating_kinds):
+        for j, cond in enumerate(conds):
+            sel = sel_all[(sel_all["agent"] == agent) & (sel_all["condition"] == cond)]
+            _line(axes[i, j], sel, "habit_actions", w, "habitual (actor)", "tab:blue")
+            _line(axes[i, j], sel, "planning_actions", w, "planning (inverse model)", "tab:red")
+            title = (condition_label(cond) if len(arbitrating_kinds) == 1
+                     else f"{AGENT_LABEL[agent]}, {condition_label(cond)}")
+            _style(axes[i, j], title, "training episode", "actions per episode")
+    if not conds:
+        axes[0, 0].text(0.5, 0.5, "no arbitrating agent in these results", ha="center",
+                        transform=axes[0, 0].transAxes)
+        _style(axes[0, 0], "arbitration", "training episode", "actions per episode")
+    names = ", ".join(AGENT_LABEL[a] for a in arbitrating_kinds) or "APAC"
+    return _save(axes[0, 0].figure, path, f"Fig. 5: {names} arbitration (moving average over {episodes(w)}; "
+                                          f"bold: mean over seeds, {_band_words(sel_all)})")
+
+
+def fig_steps_time(data: ReportData, path: Path) -> Path:
+    """Fig. 6: action steps per episode (top) and time with planning = 3 x habit (bottom)."""
+    train = _train(data.metrics).copy()
+    train["time"] = time_cost(train["habit_actions"], train["planning_actions"])
+    agents_, conds, w = agents(train), condition_order(train["condition"]), _window(train)
+    axes = _axes(2, len(conds))
+    for j, cond in enumerate(conds):
+        for agent in agents_:
+            sel = train[(train["agent"] == agent) & (train["condition"] == cond)]
+            if len(sel):
+                _line(axes[0, j], sel, "steps", w, AGENT_LABEL[agent], AGENT_COLOR[agent])
+                _line(axes[1, j], sel, "time", w, AGENT_LABEL[agent], AGENT_COLOR[agent])
+        _style(axes[0, j], condition_label(cond), "training episode", "action steps per episode")
+        _style(axes[1, j], condition_label(cond), "training episode",
+               f"time per episode (habit steps; planning = {PLANNING_COST}x)")
+    return _save(axes[0, 0].figure, path, f"Fig. 6: steps and time per episode (moving average over "
+                                          f"{episodes(w)}; bold: mean over seeds, {_band_words(train)})")
+
+
+def fig_trajectories(data: ReportData, path: Path) -> Path:
+    """Fig. 7: end-effector paths to the test targets under the conditions whose target changes."""
+    grid = data.tests[data.tests["protocol"] == "grid"]
+    changing = [c for c in condition_order(grid["condition"]) if condition_spec(c).target_mode == "changing"]
+    grid = grid[grid["condition"].isin(changing)]
+    agents_, conds = agents(grid), condition_order(grid["condition"])
+    axes = _axes(max(len(conds), 1), max(len(agents_), 1), w=3.8, h=3.8)
+    for i, cond in enumerate(conds):
+        for k, agent in enumerate(agents_):
+            ax = axes[i, k]
+            sel = grid[(grid["agent"] == agent) & (grid["condition"] == cond)]
+            for j, (px, py) in enumerate(zip(sel["path_x"], sel["path_y"])):
+                ax.plot(px, py, color="tab:blue", lw=0.4, alpha=0.35, label="end-effector path" if j == 0 else None)
+            ax.scatter(sel["target_x"], sel["target_y"], s=6, color="red", zorder=3, label="test target")
+            _plane(ax, condition_spec(cond))
+            _style(ax, f"{AGENT_LABEL[agent]}, {condition_short(cond)} ({sel['success'].mean():.0%} reached)",
+                   "x (cm)", "y (cm)")
+    if not conds:
+        axes[0, 0].text(0.5, 0.5, "no changing-target test results", ha="center", transform=axes[0, 0].transAxes)
+        _style(axes[0, 0], "trajectories", "x (cm)", "y (cm)")
+    return _save(axes[0, 0].figure, path, "Fig. 7: reaching the test targets under changing targets (all seeds)")
+
+
+def _region_maps(conds: list[str]) -> dict[tuple, list[str]]:
+    """The conditions grouped by what their region map shows: geometry, joint range, plane and split."""
+    maps: dict[tuple, list[str]] = {}
+    for cond in conds:
+        s = condition_spec(cond)
+        maps.setdefault((s.link_lengths, s.origin, s.joint_range, s.plane_size, s.region), []).append(cond)
+    return maps
+
+
+def _region_map(ax: plt.Axes, spec: TaskSpec, title: str) -> None:
+    """The reachable area at the initial link lengths, train region red, held-out test region blue."""
+    angles = np.linspace(*spec.joint_range, 181)
+    a, b = np.meshgrid(angles, angles, indexing="ij")
+    end, _ = motion_function(a, b, *spec.link_lengths, origin=spec.origin)
+    end = end.reshape(-1, 2)
+    test = spec.region.contains_test(end)
+    ax.scatter(*end[~test].T, s=0.3, color="tab:red", label="train region")
+    ax.scatter(*end[test].T, s=0.3, color="tab:blue", label=f"test region (y >= {spec.region.test_y_min} cm)")
+    _plane(ax, spec)
+    _style(ax, title, "x (cm)", "y (cm)")
+
+
+def fig_generalization(data: ReportData, path: Path) -> Path:
+    """Fig. 8: the train/test region map of each condition present (one map where they agree) and the
+    generalization success per agent and condition."""
+    sel = data.table[data.table["quantity"] == "generalization_success"]
+    conds = condition_order(sel["condition"])
+    maps = _region_maps(conds)
+    fig, axes = plt.subplots(1, len(maps) + 1, figsize=(11 + 4.6 * (len(maps) - 1), 4.4), squeeze=False,
+                             gridspec_kw={"width_ratios": [1] * len(maps) + [1.4]}, layout="constrained")
+    axes = axes[0]
+    for ax, group in zip(axes, maps.values()):
+        spec = condition_spec(group[0])
+        title = f"reachable area, l = {spec.link_lengths} cm"
+        _region_map(ax, spec, title if len(maps) == 1 else f"{', '.join(map(condition_short, group))}: {title}")
+    _bars(axes[-1], data.table, data.seed_values, "generalization_success", conds, agents(sel))
+    _style(axes[-1], "success on held-out-region targets", "training condition (s = static, c = changing)",
+           "success rate (%)", ylim=(0, 105))
+    return _save(fig, path, "Fig. 8: generalization to the held-out region (bars: mean over seeds with the 95% "
+                            "interval of report.md; dots: single seeds)")
+
+
+def fig_occluded(data: ReportData, path: Path) -> Path:
+    """Fig. 9: occluded vision, actual final distance per test target: mean over seeds, min-max band; the
+    judged-reached episodes' share and mean distance are the table's (means over seeds)."""
+    occ = data.tests[data.tests["protocol"] == "occluded"]
+    agents_, conds = agents(occ), condition_order(occ["condition"])
+    axes = _axes(max(len(agents_), 1), max(len(conds), 1))
+    for i, agent in enumerate(agents_):
+        for j, cond in enumerate(conds):
+            _occluded_panel(axes[i, j], occ[(occ["agent"] == agent) & (occ["condition"] == cond)], data.table,
+                            agent, cond)
+    if not agents_:
+        axes[0, 0].text(0.5, 0.5, "no occluded-vision results", ha="center", transform=axes[0, 0].transAxes)
+        _style(axes[0, 0], "occluded vision", "test target index", "final distance (cm)")
+    return _save(axes[0, 0].figure, path, "Fig. 9: occluded vision, actual final distance to the target (green: "
+                                          "episodes ended because the forward model judged the target reached; their "
+                                          "share and distance are means over seeds, as in report.md)")
+
+
+def _occluded_panel(ax: plt.Axes, sel: pd.DataFrame, table: pd.DataFrame, agent: str, cond: str) -> None:
+    """One agent and condition of Fig. 9."""
+    by = sel.groupby("target_index")["final_distance"]
+    x = by.mean().index.to_numpy()
+    ax.fill_between(x, by.min().to_numpy(), by.max().to_numpy(), color="tab:blue", alpha=0.35,
+                    label="min-max over seeds")
+    ax.plot(x, by.mean().to_numpy(), color="black", lw=1, label="mean over seeds")
+    judged = sel[judged_reached(sel).to_numpy()]
+    if len(judged):  # the episodes the paper's blue band describes
+        share = _table_mean(table, "occluded_judged_rate", agent, cond)
+        dist = _table_mean(table, "occluded_distance_judged", agent, cond)
+        ax.scatter(judged["target_index"], judged["final_distance"], s=6, color="tab:green", zorder=3,
+                   label=f"judged reached ({share:.0f}%)")
+        ax.axhline(dist, color="tab:green", ls="--", lw=1.2, label=f"their distance: {dist:.2f} cm")
+    zone = condition_spec(cond).zone_radius
+    ax.axhline(zone, color="red", lw=1.2, label="target-zone radius")
+    _style(ax, f"{AGENT_LABEL[agent]}, {condition_label(cond)}", "test target index", "final distance (cm)")
+    top = float(np.nanmax([sel["final_distance"].max(), zone]))
+    ax.set_ylim(0, 1.9 * top)  # room above the data for the legend
+    ax.legend(fontsize=6.5, loc="upper left", framealpha=0.9)
+
+
+#: The scoreboard's panels: (quantity, title, y label, y limits or None).
+SCOREBOARD = (
+    ("train_success_late", f"training success, last {LATE_FRACTION:.0%}", "success rate (%)", (0, 105)),
+    ("test_success", "test success (angle grid)", "success rate (%)", (0, 105)),
+    ("test_habit_fraction", "habitual share of test actions", "habit share (%)", (0, 105)),
+    ("test_time", f"test time per episode (planning = {PLANNING_COST} x habit)", "habit-step units", None),
+    ("occluded_distance_judged", "in the dark: final distance when judged reached", "cm", None),
+    ("test_estimate_error", "state-estimate error on the test grid", "cm", None),
+)
+
+
+def fig_scoreboard(data: ReportData, path: Path) -> Path:
+    """Fig. 11: every agent x condition on the quantities that weigh arbitrators and integrators."""
+    table = data.table
+    panels = [p for p in SCOREBOARD if (table["quantity"] == p[0]).any()]
+    sel = table[table["quantity"].isin([p[0] for p in panels])]
+    agents_, conds = agents(sel), condition_order(sel["condition"])
+    ncols = 2
+    axes = _axes((len(panels) + ncols - 1) // ncols, ncols,
+                 w=min(9.0, max(4.2, 0.3 * len(agents_) * len(conds) + 1.5)))
+    for ax, (q, title, ylabel, ylim) in zip(axes.flat, panels):
+        _bars(ax, table, data.seed_values, q, conds, agents_)
+        _style(ax, title, "condition", ylabel, ylim=ylim)
+    for ax in list(axes.flat)[len(panels):]:
+        ax.set_visible(False)
+    for ax in list(axes.flat)[1:len(panels)]:
+        if ax.get_legend():
+            ax.get_legend().remove()
+    return _save(axes[0, 0].figure, path, "Fig. 11: scoreboard (bars: mean over seeds with the 95% interval of "
+                                          "report.md; dots: single seeds)")
+
+
+#: The training losses of Fig. 10: (metrics column, panel label).
+LOSSES = (("critic_loss", "critic: TD loss"), ("actor_loss", "actor: -Q(s, pi(s)) (+ penalty)"),
+          ("forward_loss", "forward model: MSE (cm^2)"), ("inverse_loss", "inverse model: MSE (deg^2)"))
+
+
+def fig_losses(data: ReportData, path: Path) -> Path:
+    """Training losses per episode (mean of the episode's updates): rows conditions, columns networks."""
+    train = _train(data.metrics)
+    agents_, conds, w = agents(train), condition_order(train["condition"]), _window(train)
+    axes = _axes(len(conds), len(LOSSES), h=2.9)
+    for r, cond in enumerate(conds):
+        for c, (column, label) in enumerate(LOSSES):
+            ax = axes[r, c]
+            for agent in agents_:
+                sel = train[(train["agent"] == agent) & (train["condition"] == cond)]
+                if len(sel) and sel[column].notna().any():
+                    x, m, _, _ = _smooth_band(sel, column, w)
+                    ax.plot(x, m, color=AGENT_COLOR[agent], label=AGENT_LABEL[agent], lw=1.2)
+            if column != "actor_loss":
+                ax.set_yscale("log")
+            _style(ax, f"{condition_label(cond)}\n{label}", "training episode", "loss (mean over seeds)")
+    return _save(axes[0, 0].figure, path, f"Training losses per episode (mean of the episode's updates; "
+                                          f"moving average over {episodes(w)}, mean over seeds)")
+
+
+def _has_losses(data: ReportData) -> bool:
+    """The metrics hold every loss column (results written before the losses were recorded do not)."""
+    return all(c in data.metrics and data.metrics[c].notna().any() for c, _ in LOSSES)
+
+
+def _has(protocol: str) -> Callable[[ReportData], bool]:
+    return lambda data: protocol in data.protocols
+
+
+#: The paper's figures (and two beyond it), in the order a report draws and lists them.
+PAPER_FIGURES = (
+    FigureSpec("fig3_training_success.png", "Training success rate per episode (paper Fig. 3).", fig_training_success),
+    FigureSpec("fig4_test.png", "Test success rate and steps to reach (paper Fig. 4).", fig_test, _has("grid")),
+    FigureSpec("fig5_arbitration.png", "APAC habitual vs planning actions per episode (paper Fig. 5).",
+               fig_arbitration, lambda data: bool(arbitrating(data.metrics))),
+    FigureSpec("fig6_steps_time.png",
+               f"Action steps and time per episode, planning = {PLANNING_COST}x habit (paper Fig. 6).", fig_steps_time),
+    FigureSpec("fig7_trajectories.png", "Reaching trajectories to the test targets (paper Fig. 7).", fig_trajectories,
+               _has("grid")),
+    FigureSpec("fig8_generalization.png", "Held-out region and generalization success (paper Fig. 8).",
+               fig_generalization, _has("generalization")),
+    FigureSpec("fig9_occluded.png", "Occluded vision: final distance to the target (paper Fig. 9).", fig_occluded,
+               _has("occluded")),
+    FigureSpec("fig11_scoreboard.png", "Scoreboard: success, habit share, time, distance in the dark, "
+               "state-estimate error (not in the paper).", fig_scoreboard, _has("grid")),
+    FigureSpec("fig10_losses.png", "Training losses per episode (not in the paper).", fig_losses, _has_losses),
+)
+for _spec in PAPER_FIGURES:
+    register_figure(_spec)

@@ -1,0 +1,260 @@
+"""The key numbers: what is computed from the results, per seed first, then summarized over seeds.
+
+:func:`per_seed` computes every quantity of :data:`QUANTITIES` per (agent, condition, seed) with the
+samples behind it; :func:`key_numbers` summarizes them over seeds (mean and 95% interval,
+:func:`apac_mj.report.stats.interval`) beside what the paper states (:data:`PAPER`); :func:`differences`
+gives intervals of the key comparisons (APAC vs SPAC success, APAC's habit share across conditions).
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+import pandas as pd
+
+from apac_mj import kinds
+from apac_mj.report.labels import AGENT_LABEL, arbitrating, condition_order, condition_short, condition_spec
+from apac_mj.report.stats import interval, newcombe_interval, paired_difference
+from apac_mj.types import HABIT_COST, PLANNING_COST
+
+#: Summary windows: the last LATE_FRACTION of training episodes.
+LATE_FRACTION = 0.2
+
+# What the paper states ("Results"), keyed by (quantity, agent, condition); "*" matches any.
+PAPER = {
+    ("train_success_late", "spac", "*"): "near perfect after ~ep. 100",
+    ("train_success_late", "ddpg", "static_target"): "~100%",
+    ("train_success_late", "ddpg", "changing_target"): "~20 points below static target",
+    ("train_success_late", "ddpg", "changing_target_changing_kinematics"): "~20 points below static target",
+    ("train_success_late", "apac", "*"): "almost all, as good as SPAC",
+    ("test_success", "*", "static_target"): "100%",
+    ("habit_fraction_late", "apac", "*"): ">80% after ~300 episodes",
+    ("generalization_targets", "*", "static_target"): "~39",
+    ("generalization_targets", "*", "static_target_changing_kinematics"): "~42",
+    ("generalization_targets", "*", "changing_target"): "~39",
+    ("generalization_targets", "*", "changing_target_changing_kinematics"): "~42",
+    ("generalization_success", "*", "static_target"): "< 50%",
+    ("generalization_success", "*", "static_target_changing_kinematics"): "< 50%",
+    ("occluded_distance_judged", "spac", "changing_target"): "~0.4 cm",
+    ("occluded_distance_judged", "apac", "changing_target"): "~1 cm",
+    ("occluded_distance_judged", "spac", "changing_target_changing_kinematics"): "~0.7 cm",
+    ("occluded_distance_judged", "apac", "changing_target_changing_kinematics"): "~1.5 cm",
+}
+#: Every key number: quantity -> (the paper's figure, description, unit); "%" marks a rate.
+QUANTITIES = {
+    "train_success_late": ("Fig. 3", "training success rate, last 20% of episodes", "%"),
+    "test_success": ("Fig. 4", "test success rate (angle-grid targets)", "%"),
+    "test_steps_to_reach": ("Fig. 4", "test steps to reach (reached targets)", "steps"),
+    "habit_fraction_late": ("Fig. 5", "APAC habitual share of actions, last 20% of episodes", "%"),
+    "steps_late": ("Fig. 6", "action steps per episode, last 20% of episodes", "steps"),
+    "time_late": ("Fig. 6", f"time per episode (planning = {PLANNING_COST} x habit), last 20%", "habit-step units"),
+    "generalization_targets": ("Fig. 8", "held-out-region test targets", "targets"),
+    "generalization_success": ("Fig. 8", "generalization success rate (held-out region)", "%"),
+    "occluded_distance": ("Fig. 9", "occluded vision: final distance to target, all episodes", "cm"),
+    "occluded_judged_rate": ("Fig. 9", "occluded vision: episodes ended by the forward model judging the target reached",
+                             "%"),
+    "occluded_distance_judged": ("Fig. 9", "occluded vision: final distance when the forward model judged it reached",
+                                 "cm"),
+    "test_habit_fraction": ("Fig. 11", "habitual share of test actions (angle grid)", "%"),
+    "test_time": ("Fig. 11", f"test time per episode (planning = {PLANNING_COST} x habit; angle grid)",
+                  "habit-step units"),
+    "estimate_error_late": ("Fig. 11", "state-estimate error |estimate - truth| (hand, elbow, target), last 20%", "cm"),
+    "test_estimate_error": ("Fig. 11", "state-estimate error on the test grid", "cm"),
+}
+_KEYS = ["agent", "condition", "seed"]
+
+
+def paper_value(quantity: str, agent: str, condition: str) -> str:
+    """What the paper states for a key number ("" where it states nothing)."""
+    for key in ((quantity, agent, condition), (quantity, agent, "*"), (quantity, "*", condition)):
+        if key in PAPER:
+            return PAPER[key]
+    return ""
+
+
+def is_rate(quantity: str) -> bool:
+    return QUANTITIES[quantity][2] == "%"
+
+
+def time_cost(habit_actions: pd.Series, planning_actions: pd.Series) -> pd.Series:
+    """Time per episode in habit steps (a planning action costs PLANNING_COST, a habitual one HABIT_COST)."""
+    return HABIT_COST * habit_actions + PLANNING_COST * planning_actions
+
+
+def late(metrics: pd.DataFrame) -> pd.DataFrame:
+    """Training episodes in the last LATE_FRACTION of each cell's run."""
+    train = metrics[metrics["phase"] == "train"]
+    n = train.groupby(["agent", "condition", "region"])["episode"].transform("max") + 1
+    return train[train["episode"] >= n - np.ceil(n * LATE_FRACTION)]
+
+
+def judged_reached(occluded: pd.DataFrame) -> pd.Series:
+    """Episodes that ended because the forward model's estimate was inside the zone. Results written
+    before the ``judged_reached`` column: episodes that ended before their task's step limit."""
+    if "judged_reached" in occluded and occluded["judged_reached"].notna().all():
+        return occluded["judged_reached"].astype(bool)
+    limit = occluded["condition"].map(lambda c: condition_spec(c).steps_per_episode)
+    return occluded["steps"] < limit
+
+
+def per_seed(metrics: pd.DataFrame, tests: pd.DataFrame) -> pd.DataFrame:
+    """One row per (quantity, agent, condition, seed): every key number before averaging over seeds,
+    with ``n`` (the samples behind it: episodes, targets or actions), ``k`` (a rate's successes) and
+    ``of`` (for a mean over some of the samples, e.g. steps of the reached targets: of how many)."""
+    rows = _training(metrics[metrics["region"] == "all"])
+    if not tests.empty:
+        rows += _grid_tests(tests[tests["protocol"] == "grid"])
+        rows += _generalization(tests[tests["protocol"] == "generalization"])
+        rows += _occluded(tests[tests["protocol"] == "occluded"])
+    return pd.concat([r for r in rows if not r.empty], ignore_index=True)
+
+
+def _training(main: pd.DataFrame) -> list[pd.DataFrame]:
+    """The late-training quantities of the main study (Figs. 3, 5, 6 and the estimate error)."""
+    lt = late(main).assign(time=lambda d: time_cost(d["habit_actions"], d["planning_actions"]))
+    g = lt.groupby(_KEYS)
+    rows = [_rate("train_success_late", g["success"]), _q("steps_late", g["steps"].mean(), g.size()),
+            _q("time_late", g["time"].mean(), g.size())]
+    arb = lt[lt["agent"].isin(arbitrating(lt))].groupby(_KEYS)
+    habit, actions = arb["habit_actions"].sum(), arb["habit_actions"].sum() + arb["planning_actions"].sum()
+    rows.append(_q("habit_fraction_late", 100 * habit / actions, actions, k=habit))
+    if "estimate_error" in lt and lt["estimate_error"].notna().any():  # results from before it lack the column
+        rows.append(_q("estimate_error_late", g["estimate_error"].mean(), g.size()))
+    return rows
+
+
+def _grid_tests(grid_tests: pd.DataFrame) -> list[pd.DataFrame]:
+    """The angle-grid test quantities (Figs. 4 and 11)."""
+    grid = grid_tests.groupby(_KEYS)
+    reached = grid_tests[grid_tests["success"].astype(bool)].groupby(_KEYS)
+    every = grid.size().index  # seeds that reached nothing: NaN value, 0 samples, their targets counted in "of"
+    rows = [_rate("test_success", grid["success"]),
+            _q("test_steps_to_reach", reached["steps"].mean().reindex(every),
+               reached.size().reindex(every).fillna(0), of=grid.size()),
+            _q("test_time", grid["time_cost"].mean(), grid.size())]
+    arb_tests = grid_tests[grid_tests["agent"].isin(arbitrating(grid_tests))].groupby(_KEYS)
+    t_habit = arb_tests["habit_actions"].sum()
+    t_actions = t_habit + arb_tests["planning_actions"].sum()
+    rows.append(_q("test_habit_fraction", 100 * t_habit / t_actions, t_actions, k=t_habit))
+    if "estimate_error" in grid_tests and grid_tests["estimate_error"].notna().any():
+        rows.append(_q("test_estimate_error", grid["estimate_error"].mean(), grid.size()))
+    return rows
+
+
+def _generalization(gen_tests: pd.DataFrame) -> list[pd.DataFrame]:
+    """The held-out-region quantities (Fig. 8)."""
+    gen = gen_tests.groupby(_KEYS)
+    return [_rate("generalization_success", gen["success"]),
+            _q("generalization_targets", gen["target_index"].nunique().astype(float), gen.size())]
+
+
+def _occluded(occluded: pd.DataFrame) -> list[pd.DataFrame]:
+    """The occluded-vision quantities (Fig. 9)."""
+    occ = occluded.groupby(_KEYS)
+    rows = [_q("occluded_distance", occ["final_distance"].mean(), occ.size())]
+    if not occluded.empty:
+        judged = occluded.assign(judged=judged_reached(occluded))
+        g = judged.groupby(_KEYS)
+        rows.append(_rate("occluded_judged_rate", g["judged"]))
+        # NaN for a seed whose forward model never judged a target reached
+        jg = judged[judged["judged"]].groupby(_KEYS)
+        rows.append(_q("occluded_distance_judged", jg["final_distance"].mean().reindex(g.size().index),
+                       jg.size().reindex(g.size().index).fillna(0), of=g.size()))
+    return rows
+
+
+def _rate(name: str, flags: "pd.core.groupby.SeriesGroupBy") -> pd.DataFrame:
+    """A per-seed success rate (%) of boolean ``flags``, with its count k of n."""
+    k, n = flags.sum().astype(float), flags.size().astype(float)
+    return _q(name, 100 * k / n, n, k=k)
+
+
+def _q(name: str, series: pd.Series, n: pd.Series, k: pd.Series | None = None,
+       of: pd.Series | None = None) -> pd.DataFrame:
+    """One quantity's per-seed rows: value, samples ``n``, successes ``k``, of how many ``of``."""
+    df = series.rename("value").reset_index()
+    df.insert(0, "quantity", name)
+    df["n"] = n.reindex(series.index).to_numpy(float)
+    df["k"] = np.nan if k is None else k.reindex(series.index).to_numpy(float)
+    df["of"] = np.nan if of is None else of.reindex(series.index).to_numpy(float)
+    return df
+
+
+def key_numbers(seed_values: pd.DataFrame) -> pd.DataFrame:
+    """Mean and 95% interval (:func:`~apac_mj.report.stats.interval`) over seeds of every key number, the
+    samples behind it, the per-seed values and the paper's stated value."""
+    out = []
+    for (q, agent, cond), grp in seed_values.groupby(["quantity", "agent", "condition"], sort=False):
+        rate = is_rate(q)
+        mean, lo, hi = interval(grp["value"].tolist(), grp["k"] if rate else None, grp["n"] if rate else None)
+        fig, desc, unit = QUANTITIES[q]
+        per = grp.sort_values("seed")
+        out.append({"figure": fig, "quantity": q, "description": desc, "unit": unit, "agent": agent,
+                    "condition": cond, "n_seeds": int(grp["value"].notna().sum()), "samples": int(grp["n"].sum()),
+                    "samples_of": int(grp["of"].sum()) if grp["of"].notna().any() else None,
+                    "mean": mean, "ci95_low": lo, "ci95_high": hi,
+                    "interval": "bootstrap over seeds + Wilson (pooled count)" if rate else "bootstrap over seeds",
+                    "per_seed": "; ".join(f"{int(s)}: {fmt(v)}" for s, v in zip(per["seed"], per["value"])),
+                    "paper": paper_value(q, agent, cond)})
+    df = pd.DataFrame(out)
+    order = {q: i for i, q in enumerate(QUANTITIES)}
+    df["_o"] = df["quantity"].map(order) * 1000 + df["condition"].map(_rank(condition_order(df["condition"]))) * 10 \
+        + df["agent"].map(_rank(kinds.names()))
+    return df.sort_values("_o").drop(columns="_o").reset_index(drop=True)
+
+
+def differences(seed_values: pd.DataFrame) -> pd.DataFrame:
+    """Intervals of the key differences, per condition: each arbitrating kind (APAC) - each planning-only
+    kind (SPAC) training and test success, and each arbitrating kind's habit share in each condition
+    minus its share on the static target (percentage points)."""
+    out = [_difference(seed_values, q, one, other) for q, one, other in _comparisons(seed_values)]
+    return pd.DataFrame([row for row in out if row], columns=["quantity", "description", "comparison", "unit",
+                                                               "n_seeds", "difference", "ci95_low", "ci95_high",
+                                                               "interval"])
+
+
+def _comparisons(seed_values: pd.DataFrame) -> list[tuple[str, tuple[str, str], tuple[str, str]]]:
+    """The key comparisons ``(quantity, (agent, condition), (agent, condition))`` of the kinds present."""
+    conds = condition_order(seed_values["condition"])
+    present = [a for a in kinds.names() if a in set(seed_values["agent"])]
+    arbitrating_kinds = [a for a in present if kinds.get(a).arbitrates]
+    planning_kinds = [a for a in present if not kinds.get(a).uses_habit]
+    pairs = [(q, (a, c), (b, c)) for q in ("train_success_late", "test_success") for c in conds
+             for a in arbitrating_kinds for b in planning_kinds]
+    pairs += [("habit_fraction_late", (a, c), (a, "static_target")) for c in conds if c != "static_target"
+              for a in arbitrating_kinds]
+    return pairs
+
+
+def _difference(seed_values: pd.DataFrame, q: str, one: tuple[str, str], other: tuple[str, str]) -> dict | None:
+    """One row of :func:`differences`: ``one - other`` on quantity ``q``; None if a side has no values."""
+    def rows(agent: str, cond: str) -> pd.DataFrame:
+        sel = seed_values[(seed_values["quantity"] == q) & (seed_values["agent"] == agent)
+                          & (seed_values["condition"] == cond)]
+        return sel.set_index("seed")
+
+    (a1, c1), (a2, c2) = one, other
+    ra, rb = rows(a1, c1), rows(a2, c2)
+    if ra.empty or rb.empty:
+        return None
+    diff, lo, hi, paired = paired_difference(ra["value"], rb["value"])
+    if is_rate(q):  # widened to contain the pooled counts' Newcombe interval, as rates are in key_numbers
+        nlo, nhi = newcombe_interval(ra["k"].sum(), ra["n"].sum(), rb["k"].sum(), rb["n"].sum())
+        lo, hi = (100 * nlo, 100 * nhi) if math.isnan(lo) else (min(lo, 100 * nlo), max(hi, 100 * nhi))
+    return {"quantity": q, "description": QUANTITIES[q][1],
+            "comparison": f"{AGENT_LABEL[a1]} {condition_short(c1)} - {AGENT_LABEL[a2]} {condition_short(c2)}",
+            "unit": "points" if is_rate(q) else QUANTITIES[q][2],
+            "n_seeds": int(min(ra["value"].notna().sum(), rb["value"].notna().sum())),
+            "difference": diff, "ci95_low": lo, "ci95_high": hi,
+            "interval": ("paired bootstrap over seeds" if paired else "bootstrap over seeds (unpaired)")
+            + (" + Newcombe (pooled counts)" if is_rate(q) else "")}
+
+
+def _rank(order: Sequence[str]) -> dict[str, int]:
+    return {k: i for i, k in enumerate(order)}
+
+
+def fmt(x: float) -> str:
+    """A number as the report prints it: two decimals, "nan" for none."""
+    return "nan" if math.isnan(x) else f"{x:.2f}"
