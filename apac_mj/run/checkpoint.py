@@ -14,11 +14,12 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Any, Callable, Iterable
-
-import torch
+from typing import TYPE_CHECKING, Any, Callable, Iterable
 
 from apac_mj.util.files import atomic_write_bytes
+
+if TYPE_CHECKING:  # torch loads on the first save or load: reading a run's other files needs none
+    import torch
 
 #: Bumped when the checkpoint layout changes.
 FORMAT_VERSION = 1
@@ -30,6 +31,8 @@ class CheckpointError(RuntimeError):
 
 def save(obj: dict[str, Any], path: str | Path) -> Path:
     """Atomically write ``obj`` (with ``format_version`` added) to ``path``."""
+    import torch
+
     path = Path(path)
     payload = {**obj, "format_version": FORMAT_VERSION}
     atomic_write_bytes(path, lambda f: torch.save(payload, f))
@@ -38,6 +41,8 @@ def save(obj: dict[str, Any], path: str | Path) -> Path:
 
 def load(path: str | Path, required: Iterable[str] = (), map_location: str | torch.device = "cpu") -> dict[str, Any]:
     """Load a checkpoint without executing code; check ``format_version`` and ``required`` keys."""
+    import torch
+
     path = Path(path)
     if not path.is_file():
         raise CheckpointError(f"checkpoint {path} does not exist")
@@ -64,6 +69,8 @@ def save_rotating(obj: dict[str, Any], latest: Path, previous: Path) -> Path:
     The new file is complete and fsynced before anything is renamed; a crash between the two
     renames leaves ``previous`` (and no ``latest``), which :func:`load_newest_intact` falls back to.
     """
+    import torch
+
     latest, previous = Path(latest), Path(previous)
     payload = {**obj, "format_version": FORMAT_VERSION}
 

@@ -28,14 +28,15 @@ from typing import TYPE_CHECKING, Any, Callable, Iterable
 
 import numpy as np
 import pandas as pd
-import torch
 
 from apac_mj.config import TrainConfig, task_spec, to_dict, train_config_from_dict
 from apac_mj.kinematics import Geometry
 from apac_mj.run import checkpoint
 from apac_mj.util.files import atomic_write_parquet, atomic_write_text, read_json
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # torch, the learner and the plant load where a run is built, not where it is read
+    import torch
+
     from apac_mj.agent.agent import Agent
     from apac_mj.suite.vec_env import VecEnv
 
@@ -119,6 +120,8 @@ def check_device(device: str) -> None:
     """A CUDA device that this machine (or this torch build) lacks is an error naming the way out."""
     if not device.startswith("cuda"):
         return
+    import torch
+
     if not torch.cuda.is_available():
         build = "a CPU-only build" if torch.version.cuda is None else f"built for CUDA {torch.version.cuda}"
         raise ValueError(f"device {device!r}: CUDA is not available here (torch {torch.__version__}, {build}); "
@@ -168,6 +171,8 @@ class RunCheckpoint:
                running: dict[str, Any], babbling_generators: list[torch.Tensor],
                metric_rows: int) -> dict[str, Any]:
         """The checkpoint to save: these parts and the global torch generator's state (taken now)."""
+        import torch
+
         return {"config": config, "loop": loop, "agent": agent, "env": env, **running,
                 "babbling_generators": babbling_generators, "metric_rows": metric_rows,
                 "torch_rng": torch.get_rng_state()}
