@@ -20,7 +20,7 @@ TINY = dict(actor_hidden=(16, 16), critic_hidden=(16, 16), forward_hidden=(16, 1
 
 def _train(tmp_path_factory, agent: str, task: str = "changing_target"):
     cfg = TrainConfig(task=task, seeds=(0, 1), episodes=3, checkpoint_every=3, actuation="kinematic",
-                      agent=AgentConfig(agent=agent, **TINY))
+                      agent=AgentConfig(kind=agent, **TINY))
     return train(cfg, tmp_path_factory.mktemp(f"{agent}_{task}"), progress=False)
 
 

@@ -158,7 +158,7 @@ def test_write_video_writes_every_frame(tmp_path, suffix):
 def _tiny_train_config(seeds=(0,)):
     from apac_mj.config import AgentConfig, TrainConfig
 
-    agent = AgentConfig(agent="apac", babbling_episodes=1, planning_episodes=1, batch_size=16, replay_size=64,
+    agent = AgentConfig(kind="apac", babbling_episodes=1, planning_episodes=1, batch_size=16, replay_size=64,
                         actor_hidden=(32, 32), critic_hidden=(32, 32), forward_hidden=(32, 32),
                         inverse_hidden=(32, 32))
     return TrainConfig(task="changing_target", seeds=seeds, episodes=3, agent=agent)
@@ -212,7 +212,7 @@ def test_record_command_writes_rrd_and_video(tmp_path, capsys):
     entities, props, blueprints = R.read_recording(out)
     frames = len(entities[R.RENDER].times["frame"])
     assert frames == len(list(iio.imiter(gif))) and frames >= 4
-    assert blueprints == 1 and props["agent.agent"] == ["apac"]
+    assert blueprints == 1 and props["agent.kind"] == ["apac"]
     texts = [t[0] for t in entities[R.EVENTS].components["TextLog:text"]]
     assert sum("starts: target" in t for t in texts) == 2 and any(t.startswith("occluded") for t in texts)
     assert "KB per step" in capsys.readouterr().out

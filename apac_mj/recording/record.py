@@ -91,7 +91,7 @@ def load_agent(run: str | Path | None, task: str | None, agent: str | None, seed
     """(config, agent, first arbitrator episode, the run's environment state or None, the arbitrator's and
     the integrator's running statistics): from a run's latest checkpoint, or fresh networks seeded from ``seed``."""
     if run is None:
-        cfg = TrainConfig(task=task or "changing_target", seeds=(seed,), agent=AgentConfig(agent=agent or kinds.DEFAULT))
+        cfg = TrainConfig(task=task or "changing_target", seeds=(seed,), agent=AgentConfig(kind=agent or kinds.DEFAULT))
         net = Agent(cfg.agent, cfg.seeds, geometry=Geometry.from_spec(task_spec(cfg)))
         return cfg, net, cfg.agent.planning_episodes if as_episode is None else as_episode, None, {}
     from apac_mj.run.evaluate import warn_user
@@ -106,7 +106,7 @@ def load_agent(run: str | Path | None, task: str | None, agent: str | None, seed
     net.load_state_dict(ckpt["agent"])
     _say_overrides(run, task, agent, seed, cfg)
     if agent is not None:
-        cfg.agent.agent = kinds.get(agent).name
+        cfg.agent.kind = kinds.get(agent).name
     env_state = ckpt["env"] if task in (None, cfg.task) else None
     cfg.task = task or cfg.task
     trained = int(ckpt["loop"]["episode"][member])
@@ -118,8 +118,8 @@ def load_agent(run: str | Path | None, task: str | None, agent: str | None, seed
 
 def _say_overrides(run: str | Path, task: str | None, agent: str | None, seed: int, cfg: TrainConfig) -> None:
     """With a run, an agent kind or task other than the run's is allowed but said."""
-    if agent not in (None, cfg.agent.agent):
-        print(f"note: {run} trained {cfg.agent.agent}; recording its networks arbitrated as {agent} "
+    if agent not in (None, cfg.agent.kind):
+        print(f"note: {run} trained {cfg.agent.kind}; recording its networks arbitrated as {agent} "
               f"(--agent {agent})", file=sys.stderr)
     if task not in (None, cfg.task):
         print(f"note: {run} trained on {cfg.task}; recording on {task} (--task) with fresh environments "

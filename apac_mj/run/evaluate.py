@@ -117,10 +117,10 @@ def evaluate(run_dir: str | Path, protocols: Sequence[str] = ("grid", "occluded"
     lengths = np.stack([m["task"]["lengths"].numpy() for m in ckpt["env"]["members"]])
     own = [m["task"]["static_target"] for m in ckpt["env"]["members"]]
     summary = _read_summary(run_dir)
-    summary.update(run_dir=str(run_dir), agent=cfg.agent.agent, task=cfg.task, seeds=list(cfg.seeds),
+    summary.update(run_dir=str(run_dir), agent=cfg.agent.kind, task=cfg.task, seeds=list(cfg.seeds),
                    finished=(run_dir / "DONE").is_file())
     for protocol in protocols:
-        kind = get_kind(cfg.agent.agent)
+        kind = get_kind(cfg.agent.kind)
         if protocol == "occluded" and not kind.acts_occluded:
             reason = kind.occluded_reason or f"{kind.label} does not act without vision"
             summary.setdefault("protocols", {})[protocol] = {"applicable": False, "reason": reason}

@@ -58,9 +58,9 @@ from tqdm.auto import tqdm
 
 from apac_mj.run import checkpoint
 from apac_mj.agent.agent import Agent
-from apac_mj.config import TrainConfig, task_spec, to_dict
+from apac_mj.config import TrainConfig, migrate, task_spec, to_dict
 from apac_mj.util.files import atomic_write_parquet
-from apac_mj.kinds import arbitrator_for
+from apac_mj.kinds import arbitrator_for, check as check_kind
 from apac_mj.kinematics import Geometry
 from apac_mj.run.rollout import EpisodeLoop, EpisodeState, OnEpisodeStart, OnStep, running_statistics
 from apac_mj.types import StepInfo
@@ -189,7 +189,7 @@ def _progress_bar(cfg: TrainConfig, loop: LoopState, rows: list[dict[str, Any]],
                   progress: bool) -> tuple[tqdm, collections.deque]:
     """The episode bar and its window of the last episodes' (success, habit, planning) of all seeds."""
     bar = tqdm(total=cfg.episodes, initial=min(loop.slowest(), cfg.episodes), disable=not progress,
-               desc=f"{cfg.agent.agent} {cfg.task} x{len(cfg.seeds)}", unit="ep")
+               desc=f"{cfg.agent.kind} {cfg.task} x{len(cfg.seeds)}", unit="ep")
     window = collections.deque(((r["success"], r["habit_actions"], r["planning_actions"])
                                 for r in rows if r["phase"] == "train"), maxlen=PROGRESS_WINDOW * len(cfg.seeds))
     return bar, window
@@ -354,7 +354,7 @@ def _prepare_run_dir(cfg: TrainConfig, out_dir: Path) -> tuple[dict[str, Any], i
     path = out_dir / "config.json"
     if not path.is_file():
         return config, None
-    old = json.loads(path.read_text())
+    old = migrate(json.loads(path.read_text()))
     old.pop("git_commit", None)
     diff = _diff({**old, "episodes": None}, {**config, "episodes": None})
     if diff:
@@ -421,6 +421,7 @@ def validate(cfg: TrainConfig) -> None:
         raise ValueError(f"precision must be 'fp32' or 'bf16', got {cfg.precision!r}")
     if cfg.actuation not in ("servo", "kinematic"):
         raise ValueError(f"actuation must be 'servo' or 'kinematic', got {cfg.actuation!r}")
+    check_kind(cfg.agent)  # an unknown kind: an error listing the registered ones
     task_spec(cfg)  # unknown task -> KeyError listing the known ones; bad override -> TaskSpecError
 
 
@@ -494,7 +495,7 @@ def _apply(ckpt: dict[str, Any], path: Path, config: dict[str, Any], episodes: E
     """Put a loaded checkpoint into the agent, the environments and the generators (same config but
     the episode count, which an extended run changes)."""
     agent, env = episodes.agent, episodes.env
-    diff = _diff({**ckpt["config"], "episodes": None}, {**config, "episodes": None})
+    diff = _diff({**migrate(ckpt["config"]), "episodes": None}, {**config, "episodes": None})
     if diff:
         raise checkpoint.CheckpointError(f"checkpoint {path} is corrupt or incompatible: it was written with a "
                                          f"different config ({'; '.join(diff)})")
