@@ -125,7 +125,7 @@ def test_the_base_class_keeps_no_statistics():
     rule.observe(None, np.ones(2, dtype=bool), adapt=True)  # a no-op: nothing to learn
     assert rule.state_dict() == {}
     rule.load_state_dict({})
-    with pytest.raises(ValueError, match=r"the EveryOtherStep rule keeps no statistics, but the checkpoint has \['x'\]"):
+    with pytest.raises(ValueError, match=r"EveryOtherStep rule keeps no statistics, but the checkpoint has \['x'\]"):
         rule.load_state_dict({"x": torch.zeros(2)})
 
 
@@ -151,7 +151,7 @@ def test_use_habit_must_return_one_bool_per_member():
                              state=torch.zeros(2, 6))
     with pytest.raises(ValueError, match=r"Wrong.use_habit must return \[E\] = \(2,\) bools"):
         select_action(None, Wrong(), ctx, np.ones(2, dtype=bool), explore=False)
-    with pytest.raises(ValueError, match=r"Bare.use_habit must return a Decision\(habit \[E\] bools, inputs\), got Tensor"):
+    with pytest.raises(ValueError, match=r"Bare.use_habit must return a Decision\(habit \[E\] bools, inputs\), got"):
         select_action(None, Bare(), ctx, np.ones(2, dtype=bool), explore=False)
 
 

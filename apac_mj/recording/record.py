@@ -20,7 +20,7 @@ from tqdm.auto import tqdm
 from apac_mj.run import checkpoint
 from apac_mj import kinds
 from apac_mj.agent.agent import Agent
-from apac_mj.config import AgentConfig, TrainConfig, task_spec, train_config_from_dict
+from apac_mj.config import AgentConfig, TrainConfig, migrate, task_spec, train_config_from_dict
 from apac_mj.kinematics import Geometry
 from apac_mj.run.rollout import EpisodeLoop, running_statistics
 from apac_mj.suite.vec_env import VecEnv
@@ -97,7 +97,7 @@ def load_agent(run: str | Path | None, task: str | None, agent: str | None, seed
     from apac_mj.run.evaluate import warn_user
 
     ckpt = checkpoint.load_run_checkpoint(Path(run), required=("config", "agent", "loop", "env"), warn=warn_user)
-    run_cfg = dict(ckpt["config"])
+    run_cfg = migrate(ckpt["config"])
     run_cfg.pop("git_commit", None)
     cfg = train_config_from_dict(run_cfg)
     if member >= len(cfg.seeds):
@@ -111,7 +111,7 @@ def load_agent(run: str | Path | None, task: str | None, agent: str | None, seed
     cfg.task = task or cfg.task
     trained = int(ckpt["loop"]["episode"][member])
     running = running_statistics(ckpt)
-    if agent not in (None, run_cfg["agent"]["agent"]):
+    if agent not in (None, run_cfg["agent"]["kind"]):
         running.pop("arbitrator", None)  # re-arbitrated as another kind: its own rule starts fresh
     return cfg, net, max(trained, 0) if as_episode is None else as_episode, env_state, running
 
