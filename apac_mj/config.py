@@ -8,7 +8,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from apac_mj import kinds
+from apac_mj import rules
 
 
 @dataclasses.dataclass
@@ -17,7 +17,7 @@ class AgentConfig:
 
     #: The agent kind (apac_mj.kinds: its arbitrator decides which controller acts): ddpg (always
     #: the actor), spac (always the inverse model), apac (the arbitrator decides) or a registered one.
-    agent: str = kinds.DEFAULT
+    kind: str = rules.DEFAULT_KIND
 
     # -- networks (Table 2) --------------------------------------------------
     #: Actor hidden layers (relu); output 2 x tanh x action_scale.
@@ -79,35 +79,10 @@ class AgentConfig:
     #: reward well) or "signed" (delta < 1, Algorithm 2 read literally: "RPE < 1").
     delta_rule: str = "abs"
 
-    # -- arbitrators beyond the paper (apac_mj/agent/arbitration.py, docs/arbitrators.md) --------
-    #: Window (transitions) of the running statistics of the uncertainty-, reliability- and
-    #: speed-accuracy rules: exponential running means with rate 1 / window.
-    arbitration_window: int = 100
-    #: Weight (in transitions) of a running statistic against this episode's own TD errors when the
-    #: uncertainty and reliability rules blend them.
-    arbitration_prior_weight: float = 4.0
-    #: Speed-accuracy rule: window (visits of an entry) of its learned time-cost table: a short one, so the
-    #: planning phase's early, long episodes (an immature planner, annealed noise) are soon forgotten.
-    speed_accuracy_window: int = 20
-    #: Reliability rule (Lee et al. 2014): the transition rates' amplitude A and slope B.
-    reliability_rate: float = 0.5
-    reliability_slope: float = 6.0
-    #: Vision-aware rule: the kind whose rule acts while the arm is seen (default: the paper's APAC).
-    vision_aware_base: str = kinds.DEFAULT
-    #: Vision-aware rule without vision: "suppress" (the planner acts) or "check" (the habit acts only
-    #: where the forward model predicts its proposal lands in the zone or ``vision_check_ratio`` closer).
-    vision_aware_dark: str = "suppress"
-    vision_check_ratio: float = 0.5
-
     # -- integrator (apac_mj/agent/integrator.py) ------------------------------------
     #: "pass_through" (the paper: the seen position if seen, else the forward model's prediction) or
     #: "kalman" (a Kalman filter over the forward model: fuses prediction and noisy observation).
     integrator: str = "pass_through"
-    #: Kalman filter: window (seen steps) of the running innovation averages that estimate the
-    #: forward model's error variance q, q's floor (cm^2), and q before the first innovation (cm^2).
-    kalman_window: int = 200
-    kalman_process_floor: float = 1e-4
-    kalman_initial_process_var: float = 0.25
 
     # -- motor babbling -------------------------------------------------------
     #: Episodes of random actions before learning (the paper gives no number).
@@ -135,13 +110,18 @@ class AgentConfig:
     feasibility_weight: float = 0.0
     #: Habit formation from planning (not in the paper; 0 = off): the actor's loss adds
     #: ``w * mean |pi(s) - f_I(s)|^2 / action_scale^2``, pulling the habit towards what the inverse
-    #: model proposes in the same state (the inverse model is not changed by it). APAC only: ignored
-    #: for "ddpg" (no planner to learn from; it would stop being DDPG) and "spac" (the habit never acts).
+    #: model proposes in the same state (the inverse model is not changed by it). Kinds that arbitrate
+    #: only: refused for "ddpg" (no planner to learn from; it would stop being DDPG) and "spac" (the habit
+    #: never acts).
     habit_distillation_weight: float = 0.0
 
     #: Proposals from the target actor (the paper's text says so) instead of
     #: the online actor (standard DDPG, default).
     act_with_target_actor: bool = False
+
+    # -- rules and integrators beyond the paper (apac_mj/rules.py, docs/arbitrators.md) ----------
+    #: Each rule's and integrator's own parameters, one table each (``agent.<table>.<field>``; apac_mj.rules).
+    params: dict[str, Any] = dataclasses.field(default_factory=dict, metadata={"tables": True})
 
     def ou_sigma_at(self, episode: "np.ndarray") -> "np.ndarray":
         """OU sigma (degrees) per member at training ``episode`` (``[E]``; babbling counts as 0)."""
@@ -154,32 +134,21 @@ class AgentConfig:
         return self.ou_sigma_initial + frac * (self.ou_sigma - self.ou_sigma_initial)
 
     def __post_init__(self) -> None:
-        kinds.get(self.agent)  # an unknown kind: an error listing the registered ones
+        """Every value checked (the kind by ``apac_mj.kinds.check``); ``params`` completed with defaults."""
         for name in ("actor_lr", "critic_lr", "forward_lr", "inverse_lr", "tau", "gamma"):
             v = getattr(self, name)
             if not (0 < v <= 1):
                 raise ValueError(f"{name} must be in (0, 1], got {v}")
         for name, choices in (("critic_form", ("concat", "summed", "separable")), ("action_squash", ("tanh", "feasible")),
-                              ("delta_rule", ("abs", "signed"))):
+                              ("delta_rule", ("abs", "signed")), ("critic_action", ("executed", "commanded")),
+                              ("integrator", tuple(rules.INTEGRATORS))):
             if getattr(self, name) not in choices:
                 raise ValueError(f"{name} must be one of {choices}, got {getattr(self, name)!r}")
-        kinds.get(self.vision_aware_base)
-        if self.integrator not in ("pass_through", "kalman"):
-            raise ValueError(f"integrator must be 'pass_through' or 'kalman', got {self.integrator!r}")
-        if self.kalman_window < 1 or self.kalman_process_floor < 0 or self.kalman_initial_process_var < 0:
-            raise ValueError("kalman_window must be >= 1, kalman_process_floor and kalman_initial_process_var >= 0")
-        if self.vision_aware_dark not in ("suppress", "check"):
-            raise ValueError(f"vision_aware_dark must be 'suppress' or 'check', got {self.vision_aware_dark!r}")
-        if self.arbitration_window < 1 or self.speed_accuracy_window < 1 or self.arbitration_prior_weight < 0:
-            raise ValueError("arbitration_window and speed_accuracy_window must be >= 1, arbitration_prior_weight >= 0")
-        if not (0 < self.vision_check_ratio <= 1) or self.reliability_rate <= 0 or self.reliability_slope <= 0:
-            raise ValueError("vision_check_ratio must be in (0, 1], reliability_rate and reliability_slope > 0")
-        if self.critic_action not in ("executed", "commanded"):
-            raise ValueError(f"critic_action must be 'executed' or 'commanded', got {self.critic_action!r}")
         if self.ou_sigma < 0 or (self.ou_sigma_initial is not None and self.ou_sigma_initial < 0):
             raise ValueError("ou_sigma and ou_sigma_initial must be >= 0 degrees")
         if self.batch_size < 1 or self.replay_size < 1:
             raise ValueError("batch_size and replay_size must be >= 1")
+        self.params = rules.resolve(self.params)
 
 
 @dataclasses.dataclass
@@ -205,21 +174,45 @@ class TrainConfig:
     agent: AgentConfig = dataclasses.field(default_factory=AgentConfig)
 
 
-def task_spec(cfg: TrainConfig):
-    """The run's task: ``tasks/<cfg.task>.toml`` with ``cfg.task_overrides`` applied."""
-    from apac_mj.suite import load_spec
-
-    return load_spec(cfg.task).replace(**cfg.task_overrides)
-
-
-def to_dict(cfg: Any) -> dict[str, Any]:
-    return dataclasses.asdict(cfg)
+def to_dict(cfg: TrainConfig) -> dict[str, Any]:
+    """``cfg`` as the dict config.json holds: each parameter table at ``agent.<table>``."""
+    d = dataclasses.asdict(cfg)
+    d["agent"].update(d["agent"].pop("params"))
+    return d
 
 
 def train_config_from_dict(d: dict[str, Any]) -> TrainConfig:
-    d = dict(d)
-    agent = AgentConfig(**_tuples(d.pop("agent", {})))
-    return TrainConfig(agent=agent, **_tuples(d))
+    """The inverse of :func:`to_dict`, for dicts of any release (:func:`migrate`)."""
+    d = migrate(d)
+    agent = dict(d.pop("agent", {}))
+    params = {name: agent.pop(name) for name in rules.tables() if name in agent}
+    return TrainConfig(agent=AgentConfig(params=params, **_tuples(agent)), **_tuples(d))
+
+
+#: Where the flat rule fields of the releases up to 936695d went: ``agent.<old>`` -> ``agent.<table>.<field>``.
+MOVED = {"arbitration_window": (("uncertainty", "window"), ("reliability", "window")),
+         "arbitration_prior_weight": (("uncertainty", "prior_weight"), ("reliability", "prior_weight")),
+         "reliability_rate": (("reliability", "rate"),), "reliability_slope": (("reliability", "slope"),),
+         "speed_accuracy_window": (("speed_accuracy", "window"),),
+         "vision_aware_base": (("vision_aware", "base"),), "vision_aware_dark": (("vision_aware", "dark"),),
+         "vision_check_ratio": (("vision_aware", "check_ratio"),),
+         "kalman_window": (("kalman", "window"),), "kalman_process_floor": (("kalman", "process_floor"),),
+         "kalman_initial_process_var": (("kalman", "initial_process_var"),)}
+
+
+def migrate(d: dict[str, Any]) -> dict[str, Any]:
+    """A config dict (config.json, cell.json's run, a checkpoint's) of any release in today's shape:
+    ``agent.agent`` -> ``agent.kind``, the flat rule fields (:data:`MOVED`) -> their tables. Pure and
+    idempotent; every value is kept."""
+    agent = dict(d.get("agent", {}))
+    if "agent" in agent:
+        agent["kind"] = agent.pop("agent")
+    for old, places in MOVED.items():
+        if old in agent:
+            value = agent.pop(old)
+            for table, field in places:
+                agent[table] = {**agent.get(table, {}), field: value}
+    return {**d, "agent": agent} if "agent" in d else dict(d)
 
 
 def _tuples(d: dict[str, Any]) -> dict[str, Any]:

@@ -1,12 +1,14 @@
 """The registry of agent kinds: the one place that says what ``ddpg``, ``spac`` and ``apac`` are.
 
-An agent kind is a name (``AgentConfig.agent``) with what the rest of the
+An agent kind is a name (``AgentConfig.kind``) with what the rest of the
 project needs to know about it: its label and colour in figures, the
-arbitrator that decides between the actor and the inverse model, which of the
-two it uses, and whether it can act in the dark (the occluded-vision test
-runs only for kinds that can). Every module asks the registry; none tests a
-kind's name. A new kind is one :func:`register` call from any code, inside the
-package or not (docs/extending.md)::
+arbitrator that decides between the actor and the inverse model (an
+:class:`apac_mj.types.Arbitrator`) and the table of its parameters
+(:mod:`apac_mj.rules`), which of the two controllers it uses, and whether it
+can act in the dark (the occluded-vision test runs only for kinds that can).
+Every module asks the registry; none tests a kind's name. A new kind is one
+:func:`register` call from any code, inside the package or not
+(docs/extending.md)::
 
     from apac_mj import kinds
     from apac_mj.agent.arbitration import DeltaArbitrator
@@ -23,9 +25,12 @@ from __future__ import annotations
 import dataclasses
 from typing import TYPE_CHECKING, Callable
 
+from apac_mj import rules
+from apac_mj.rules import ReliabilityParams, SpeedAccuracyParams, UncertaintyParams, VisionAwareParams
+
 if TYPE_CHECKING:
-    from apac_mj.agent.arbitration import Arbitrator
     from apac_mj.config import AgentConfig
+    from apac_mj.types import Arbitrator
 
 
 class UnknownKindError(ValueError, KeyError):
@@ -56,6 +61,9 @@ class AgentKind:
     acts_occluded: bool = True
     #: Why the occluded test does not apply (when ``acts_occluded`` is False); shown in eval summaries.
     occluded_reason: str = ""
+    #: The table of the rule's parameters (apac_mj.rules: a dataclass with a ``table`` name; registered with
+    #: the kind, so ``agent.<table>.<field>`` reaches it); None: the rule reads only AgentConfig's fields.
+    params: type | None = None
 
     def __post_init__(self) -> None:
         if not self.name or not self.name.replace("_", "").isalnum():
@@ -75,9 +83,12 @@ _KINDS: dict[str, AgentKind] = {}
 
 
 def register(kind: AgentKind, replace: bool = False) -> AgentKind:
-    """Add ``kind`` to the registry (after the kinds already there); a taken name needs ``replace=True``."""
+    """Add ``kind`` (and its parameter table) to the registry (after the kinds already there); a taken name
+    needs ``replace=True``."""
     if kind.name in _KINDS and not replace:
         raise ValueError(f"agent kind {kind.name!r} is already registered (pass replace=True to redefine it)")
+    if kind.params is not None:
+        rules.register(kind.params)
     _KINDS[kind.name] = kind
     return kind
 
@@ -104,52 +115,71 @@ def names() -> tuple[str, ...]:
     return tuple(_KINDS)
 
 
-def arbitrator_for(cfg: AgentConfig, state: dict | None = None) -> Arbitrator:
-    """The arbitrator of ``cfg.agent``'s kind, built from ``cfg``, with the running statistics ``state``
-    (a checkpoint's ``"arbitrator"`` entry) loaded where given (:func:`apac_mj.agent.arbitration.restore`)."""
-    from apac_mj.agent.arbitration import restore
+def check(cfg: AgentConfig) -> None:
+    """Refuse an AgentConfig naming an unregistered kind (an error listing the registered ones), a vision-aware
+    base that is not a kind, or habit formation for a kind that does not arbitrate."""
+    kind = get(cfg.kind)
+    get(cfg.params[VisionAwareParams.table].base)
+    if cfg.habit_distillation_weight > 0 and not kind.arbitrates:
+        raise ValueError(f"habit_distillation_weight = {cfg.habit_distillation_weight} needs a kind that arbitrates "
+                         f"(it pulls the habit towards the planner); {kind.name!r} uses only the "
+                         f"{'habit' if kind.uses_habit else 'planner'}: set it to 0")
 
-    arbitrator = get(cfg.agent).arbitrator(cfg)
-    restore(arbitrator, state)
+
+def arbitrator_for(cfg: AgentConfig, state: dict | None = None) -> Arbitrator:
+    """The arbitrator of ``cfg.kind``, built from ``cfg``, with the running statistics ``state`` (a checkpoint's
+    ``"arbitrator"`` entry) loaded where given; a factory that builds no :class:`apac_mj.types.Arbitrator`
+    is an error naming the kind."""
+    from apac_mj.types import Arbitrator
+
+    arbitrator = get(cfg.kind).arbitrator(cfg)
+    if not isinstance(arbitrator, Arbitrator):
+        raise TypeError(f"agent kind {cfg.kind!r} built a {type(arbitrator).__name__}, not an "
+                        "apac_mj.types.Arbitrator (subclass it: use_habit returns a Decision)")
+    arbitrator.load_state_dict(state or {})
     return arbitrator
 
 
-def _builtin(name: str) -> Callable[[AgentConfig], Arbitrator]:
-    """A factory of ``apac_mj.agent.arbitration.<name>``, imported when first used (this module stays torch-free)."""
+def _builtin(name: str, beyond: bool = False) -> Callable[[AgentConfig], Arbitrator]:
+    """A factory of the rule ``name`` of ``apac_mj.agent.arbitration`` (the paper's) or, ``beyond`` the paper,
+    ``apac_mj.agent.arbitrators``; imported when first used (this module stays torch-free)."""
 
     def make(cfg: AgentConfig) -> Arbitrator:
-        from apac_mj.agent import arbitration as arbitrator
+        from apac_mj.agent import arbitration, arbitrators
 
-        return getattr(arbitrator, name)(cfg)
+        return getattr(arbitrators if beyond else arbitration, name)(cfg)
 
     make.__qualname__ = make.__name__ = name
     return make
 
 
-register(AgentKind("ddpg", "DDPG", "tab:orange", _builtin("AlwaysHabit"), uses_planner=False, acts_occluded=False,
-                   occluded_reason="DDPG has no forward model to move on"))
+register(AgentKind("ddpg", "DDPG", "tab:orange", _builtin("AlwaysHabit"), uses_planner=False,
+                   acts_occluded=False, occluded_reason="DDPG has no forward model to move on"))
 register(AgentKind("spac", "SPAC", "tab:green", _builtin("AlwaysPlan"), uses_habit=False))
 register(AgentKind("apac", "APAC", "tab:blue", _builtin("DeltaArbitrator")))
 # Beyond the paper (docs/arbitrators.md): APAC's two systems under other arbitration rules.
-register(AgentKind("apac_uncertainty", "APAC-U (uncertainty)", "tab:pink", _builtin("UncertaintyArbitrator")))
-register(AgentKind("apac_reliability", "APAC-R (reliability)", "sienna", _builtin("ReliabilityArbitrator")))
+register(AgentKind("apac_uncertainty", "APAC-U (uncertainty)", "tab:pink",
+                   _builtin("UncertaintyArbitrator", beyond=True), params=UncertaintyParams))
+register(AgentKind("apac_reliability", "APAC-R (reliability)", "sienna",
+                   _builtin("ReliabilityArbitrator", beyond=True), params=ReliabilityParams))
 register(AgentKind("apac_speed_accuracy", "APAC-SA (speed-accuracy)", "crimson",
-                   _builtin("SpeedAccuracyArbitrator")))
+                   _builtin("SpeedAccuracyArbitrator", beyond=True), params=SpeedAccuracyParams))
+
+
 def _vision_aware(cfg: AgentConfig) -> Arbitrator:
-    """The vision-aware rule over ``cfg.vision_aware_base``'s rule (built with the default base, so that
-    naming a vision-aware kind as the base is refused instead of recursing)."""
-    import dataclasses
+    """The vision-aware rule over its base kind's rule (built with the default base, so that naming a
+    vision-aware kind as the base is refused instead of recursing)."""
+    from apac_mj.agent.arbitrators import VisionAwareArbitrator
 
-    from apac_mj.agent.arbitration import VisionAwareArbitrator
+    params = cfg.params[VisionAwareParams.table]
+    base_cfg = dataclasses.replace(cfg, params={**cfg.params, params.table: dataclasses.replace(params, base=DEFAULT)})
+    return VisionAwareArbitrator(cfg, base=get(params.base).arbitrator(base_cfg))
 
-    base_cfg = dataclasses.replace(cfg, vision_aware_base=DEFAULT)
-    return VisionAwareArbitrator(cfg, base=get(cfg.vision_aware_base).arbitrator(base_cfg))
 
-
-register(AgentKind("apac_vision", "APAC-V (vision-aware)", "darkturquoise", _vision_aware))
+register(AgentKind("apac_vision", "APAC-V (vision-aware)", "darkturquoise", _vision_aware, params=VisionAwareParams))
 #: The kinds registered here (the built-in ones: they cannot be removed).
 BUILTIN = names()
 #: The paper's kinds (the default agents of a preset).
 PAPER_KINDS = BUILTIN[:3]
 #: The default kind.
-DEFAULT = "apac"
+DEFAULT = rules.DEFAULT_KIND

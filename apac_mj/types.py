@@ -1,5 +1,7 @@
-"""The records that cross layers: what the plant shows (:class:`Observation`), what an arbitrator sees
-(:class:`ArbitrationContext`) and what every step did (:class:`StepInfo`); and the time cost of an action.
+"""The records and contracts that cross layers: what the plant shows (:class:`Observation`), what an
+arbitrator sees (:class:`ArbitrationContext`) and decides (:class:`Decision`), what every step did
+(:class:`StepInfo`); the time cost of an action; and the extension points' base classes
+(:class:`Arbitrator`, :class:`Integrator`) and what the episode loop calls on an agent (:class:`Policy`).
 
 They live below the plant (``suite``), the learner (``agent``) and the run (``run``), so each of those names
 them in its signatures without importing the others. Units are the paper's: cm and degrees. This module
@@ -8,13 +10,16 @@ tensors import it when built.
 """
 from __future__ import annotations
 
+import abc
 import dataclasses
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING, Any, Callable, NamedTuple, Protocol
 
 import numpy as np
 
 if TYPE_CHECKING:
     import torch
+
+    from apac_mj.config import AgentConfig
 
 #: Time cost of one action of each controller (the paper's Fig. 6: planning three times slower than a habit).
 PLANNING_COST, HABIT_COST = 3, 1
@@ -59,8 +64,6 @@ class ArbitrationContext:
     forward_error: torch.Tensor | None = None
     #: The integrator's state the agent acts on ``[E, 6]`` (on the agent's device); None if not given.
     state: torch.Tensor | None = None
-    #: The agent's per-member uncertainty estimates ``name -> [E]`` (empty when the agent has none).
-    uncertainty: dict[str, torch.Tensor] = dataclasses.field(default_factory=dict)
     #: The actor's proposal ``[E, 2]`` (degrees, no noise) in ``state``; None if not given.
     habit_action: torch.Tensor | None = None
     #: The forward model as a checker: action ``[E, 2]`` -> predicted end effector ``[E, 2]`` after it
@@ -122,6 +125,102 @@ class StepInfo:
     link_lengths: np.ndarray   # [E, 2] after the step
     next_state: np.ndarray     # [E, 6] the integrator's state after the step (s_{t+1})
     terminal: np.ndarray       # [E] bool: the transition is terminal for learning (perceived reach)
-    #: The arbitrator's decision inputs at this step, ``name -> [E]`` (its ``last_inputs``; empty for
+    zone_radius: float         # radius (cm) of the target zone the agent judged ``terminal`` by
+    #: The arbitrator's decision inputs at this step, ``name -> [E]`` (:attr:`Decision.inputs`; empty for
     #: rules without inputs): what recordings show as "why".
     arbitration: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
+
+
+class Decision(NamedTuple):
+    """An arbitrator's decision at one step: where the habit acts, and why."""
+
+    #: ``[E]`` bool: True where the actor (habit) acts, False where the inverse model (planning) does.
+    habit: torch.Tensor
+    #: The decision's inputs, ``name -> [E]`` (recordings show them per step); empty: none to show.
+    inputs: dict[str, torch.Tensor] = {}
+
+
+class Arbitrator(abc.ABC):
+    """Decides per member whether the habit (actor) or the planner (inverse model) acts.
+
+    A rule implements :meth:`use_habit`; a rule with running statistics also :meth:`observe`,
+    :meth:`state_dict` and :meth:`load_state_dict` (the defaults: nothing learned, nothing kept).
+    """
+
+    @abc.abstractmethod
+    def use_habit(self, ctx: ArbitrationContext) -> Decision:
+        """The decision for every member at the step ``ctx`` describes."""
+
+    def observe(self, info: StepInfo, mask: np.ndarray, adapt: bool) -> None:
+        """After every step: learn from ``info`` for the members in ``mask`` (``adapt``: update the running
+        statistics, True in training, False in frozen tests). Default: nothing."""
+
+    def state_dict(self) -> dict[str, torch.Tensor]:
+        """The running statistics a checkpoint keeps (any tensors). Default: none."""
+        return {}
+
+    def load_state_dict(self, d: dict[str, torch.Tensor]) -> None:
+        """Restore :meth:`state_dict`'s output. Default: only an empty one is accepted."""
+        if d:
+            raise ValueError(f"the {type(self).__name__} rule keeps no statistics, but the checkpoint has {sorted(d)}")
+
+
+class Integrator(abc.ABC):
+    """Makes the state estimate the agent acts and learns on, ``[E, 6]`` (``apac_mj.agent.integrator``).
+
+    The estimate itself is carried by the caller (``prior_state`` in, next estimate out); an integrator
+    keeps only what it learns (:meth:`state_dict`).
+    """
+
+    #: The integrator's running statistics learn from the steps (training); False: frozen (tests).
+    adapt: bool = True
+
+    def __init__(self, E: int, device: torch.device | str = "cpu") -> None:
+        import torch
+
+        if not isinstance(E, int) or isinstance(E, bool) or E < 1:
+            raise ValueError(f"E must be an int >= 1, got {E!r}")
+        self.E, self.device = E, torch.device(device)
+
+    @abc.abstractmethod
+    def reset(self, mask: Any, seen_state: torch.Tensor) -> None:
+        """Start new episodes for the members in ``mask`` ``[E]`` from ``seen_state`` ``[E, 6]``."""
+
+    @abc.abstractmethod
+    def update(self, prior_state: torch.Tensor, predicted_arm: torch.Tensor, observed_state: torch.Tensor,
+               vision: Any, active: Any) -> torch.Tensor:
+        """The next estimate ``[E, 6]`` from the estimate acted on, the forward model's prediction ``[E, 4]``
+        and the observation ``[E, 6]`` (``vision`` ``[E]``: seen); rows of inactive members unchanged."""
+
+    def state_dict(self) -> dict[str, torch.Tensor]:
+        """What a checkpoint keeps. Default: nothing."""
+        return {}
+
+    def load_state_dict(self, d: dict[str, torch.Tensor]) -> None:
+        """Restore :meth:`state_dict`'s output. Default: only an empty one is accepted."""
+        if d:
+            raise ValueError(f"{type(self).__name__} has no state; got keys {sorted(d)}")
+
+
+class Policy(Protocol):
+    """What the episode loop (``apac_mj.run.rollout``) calls on an agent (``apac_mj.agent.agent.Agent``)."""
+
+    cfg: AgentConfig  # the exploration schedule (``ou_sigma_at``)
+    device: torch.device
+    noise: Any  # the exploration noise (``apac_mj.agent.noise.OUNoise``): ``reset(mask)``, ``sample(active, sigma)``
+
+    def actor_action(self, state: torch.Tensor) -> torch.Tensor:
+        """Habit proposal ``[E, 6] -> [E, 2]`` degrees (no noise)."""
+
+    def inverse_action(self, state: torch.Tensor) -> torch.Tensor:
+        """Planning proposal ``[E, 6] -> [E, 2]`` degrees (no noise)."""
+
+    def executable(self, a: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
+        """The part of command ``a`` ``[E, 2]`` the plant can execute from the pose in ``s``."""
+
+    def predict_arm(self, arm: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        """Forward model: ``[end, elbow]`` ``[E, 4]`` + action ``[E, 2]`` -> next ``[end, elbow]``."""
+
+    def td_error(self, s: torch.Tensor, a: torch.Tensor, r: torch.Tensor, s2: torch.Tensor,
+                 done: torch.Tensor) -> torch.Tensor:
+        """This transition's TD error ``[E]``."""

@@ -71,7 +71,7 @@ def main() -> None:
                 cfg = TrainConfig(task=task, seeds=tuple(range(args.seeds)), episodes=args.episodes,
                                   checkpoint_every=max(1, args.episodes // 4), actuation=args.actuation,
                                   task_overrides=dict(kv.split("=", 1) for kv in args.task_overrides),
-                                  agent=AgentConfig(agent=agent, **{**NETS[args.nets],
+                                  agent=AgentConfig(kind=agent, **{**NETS[args.nets],
                                                                     **agent_overrides(args.overrides)}))
                 t = time.perf_counter()
                 run = train(cfg, root / f"{agent}__{task}", progress=True)

@@ -75,7 +75,7 @@ def timed_parts(totals: dict[str, float]) -> Iterator[None]:
 def measure(E: int, net: str, episodes: int, actuation: str) -> tuple[float, dict[str, float], int]:
     """(wall seconds, per-part seconds, environment steps of all seeds) of a short training run."""
     cfg = TrainConfig(task="changing_target", seeds=tuple(range(E)), episodes=episodes, checkpoint_every=10**6,
-                      actuation=actuation, agent=AgentConfig(agent="apac", babbling_episodes=1, **NETS[net]))
+                      actuation=actuation, agent=AgentConfig(kind="apac", babbling_episodes=1, **NETS[net]))
     out = Path(tempfile.mkdtemp(prefix="train_step_"))
     totals: dict[str, float] = collections.defaultdict(float)
     steps = [0]

@@ -36,7 +36,7 @@ from apac_mj.config import AgentConfig
 
 def filled_agent(E: int, precision: str) -> Agent:
     """A paper-sized agent whose replay memories hold 1000 random transitions each."""
-    agent = Agent(AgentConfig(agent="ddpg", feasibility_weight=0.0), list(range(E)), precision=precision)
+    agent = Agent(AgentConfig(kind="ddpg", feasibility_weight=0.0), list(range(E)), precision=precision)
     g = torch.Generator().manual_seed(0)
     for _ in range(agent.cfg.replay_size):
         s, s2 = torch.rand(E, 6, generator=g) * 30, torch.rand(E, 6, generator=g) * 30

@@ -327,15 +327,3 @@ def test_habit_distillation_pulls_actor_to_planner(normalize):
     gap_on = (on.actor_action(probe) - on.inverse_action(probe)).abs().mean()
     gap_off = (off.actor_action(probe) - off.inverse_action(probe)).abs().mean()
     assert gap_on < 0.5 * gap0 and gap_on < 0.5 * gap_off
-
-
-@pytest.mark.parametrize("mode", ["ddpg", "spac"])
-def test_habit_distillation_acts_in_apac_only(mode):
-    """DDPG and SPAC ignore habit_distillation_weight: the same updates as without it."""
-    with_w, without = Agent(small_cfg(agent=mode, habit_distillation_weight=50.0), [0]), Agent(small_cfg(agent=mode), [0])
-    for s, a, r, s2, d in transitions(1, 4):
-        for ag in (with_w, without):
-            ag.replay.add(s, a, r, s2, d, [True])
-            ag.update([True])
-    for p, q in zip(params_of(with_w, 0), params_of(without, 0)):
-        assert torch.equal(p, q)

@@ -14,8 +14,8 @@ import torch
 from apac_mj.run import checkpoint
 from apac_mj import kinds
 from apac_mj.types import HABIT_COST, PLANNING_COST, ArbitrationContext
-from apac_mj.agent.arbitration import (ReliabilityArbitrator,
-                                SpeedAccuracyArbitrator, UncertaintyArbitrator, blend, ema)
+from apac_mj.agent.arbitration import blend, ema
+from apac_mj.agent.arbitrators import ReliabilityArbitrator, SpeedAccuracyArbitrator, UncertaintyArbitrator
 from apac_mj.config import AgentConfig
 from apac_mj.run.evaluate import evaluate
 from apac_mj.run.run_dir import load_run
@@ -31,8 +31,9 @@ def same(a: torch.Tensor, b: torch.Tensor) -> bool:
 NEW_KINDS = ("apac_uncertainty", "apac_reliability", "apac_speed_accuracy", "apac_vision")
 
 
-def cfg(**kw) -> AgentConfig:
-    return AgentConfig(agent="apac", planning_episodes=0, **kw)
+def cfg(**tables) -> AgentConfig:
+    """APAC's config without a planning phase, with the rule tables given (``uncertainty={"window": 2}``)."""
+    return AgentConfig(kind="apac", planning_episodes=0, params=tables)
 
 
 def ctx(E=2, episode=5, step=3, last_delta=0.0, recent=None, vision=True, state=None, habit_action=None,
@@ -46,7 +47,7 @@ def ctx(E=2, episode=5, step=3, last_delta=0.0, recent=None, vision=True, state=
 
 
 def step(delta, end_error=None, before=None, after=None, habit=None, vision=None, done=None,
-         terminal=None) -> SimpleNamespace:
+         terminal=None, inputs=None) -> SimpleNamespace:
     """A StepInfo with what the running statistics read: the hand moves along x towards a target at 0."""
     delta = np.asarray(delta, dtype=np.float32)
     E = len(delta)
@@ -62,7 +63,8 @@ def step(delta, end_error=None, before=None, after=None, habit=None, vision=None
                            habit=np.zeros(E, bool) if habit is None else np.asarray(habit),
                            done=np.zeros(E, bool) if done is None else np.asarray(done),
                            terminal=np.zeros(E, bool) if terminal is None else np.asarray(terminal),
-                           episode=np.full(E, 200))
+                           episode=np.full(E, 200), zone_radius=0.5,
+                           arbitration={k: v.numpy() for k, v in (inputs or {}).items()})
 
 
 def test_ema_and_blend_by_hand():
@@ -78,19 +80,20 @@ def test_ema_and_blend_by_hand():
 
 
 def test_uncertainty_rule_prefers_the_less_uncertain_system():
-    arb = UncertaintyArbitrator(cfg(arbitration_window=2, arbitration_prior_weight=4.0))
+    arb = UncertaintyArbitrator(cfg(uncertainty={"window": 2, "prior_weight": 4.0}))
     c = ctx(recent=torch.full((2, 3), float("nan")))
-    assert not arb.use_habit(c).any(), "no statistics yet: the planner acts"
+    assert not arb.use_habit(c).habit.any(), "no statistics yet: the planner acts"
     # member 0: the critic errs little, the forward model a lot; member 1 the reverse
     arb.observe(step([0.1, 2.0], end_error=[1.0, 0.1]), np.ones(2, bool))
     arb.observe(step([0.3, 2.0], end_error=[1.0, 0.1]), np.ones(2, bool))
     assert arb.stats["habit_var"].tolist() == pytest.approx([0.01 + 0.5 * (0.09 - 0.01), 4.0])
     assert arb.stats["planning_var"].tolist() == pytest.approx([1.0, 0.01], rel=1e-5)
-    assert arb.use_habit(c).tolist() == [True, False]
-    assert set(arb.last_inputs) == {"habit_uncertainty", "planning_uncertainty"}
+    decision = arb.use_habit(c)
+    assert decision.habit.tolist() == [True, False]
+    assert set(decision.inputs) == {"habit_uncertainty", "planning_uncertainty"}
     # this episode's own large deltas outweigh a small prior once the prior has weight
     arb.prior_weight = 1.0
-    assert arb.use_habit(ctx(recent=[[5.0, 5.0, 5.0], [float("nan")] * 3])).tolist() == [False, False]
+    assert arb.use_habit(ctx(recent=[[5.0, 5.0, 5.0], [float("nan")] * 3])).habit.tolist() == [False, False]
     # frozen (tests): observe without adapt leaves the statistics alone
     before = arb.state_dict()
     arb.observe(step([9.0, 9.0], end_error=[9.0, 9.0]), np.ones(2, bool), adapt=False)
@@ -98,83 +101,109 @@ def test_uncertainty_rule_prefers_the_less_uncertain_system():
 
 
 def test_reliability_rule_moves_the_probability_of_planning_as_lee_et_al():
-    arb = ReliabilityArbitrator(cfg(arbitration_window=1, arbitration_prior_weight=1.0, reliability_rate=0.5,
-                                    reliability_slope=6.0))
+    arb = ReliabilityArbitrator(cfg(reliability={"window": 1, "prior_weight": 1.0, "rate": 0.5, "slope": 6.0}))
     c = ctx(E=1, recent=[[float("nan")] * 2])
-    assert arb.use_habit(c).tolist() == [False], "P(planning) starts at 1"
-    arb.observe(step([0.2], end_error=[2.0]), np.ones(1, bool))  # small RPE, large SPE
+    decision = arb.use_habit(c)
+    assert decision.habit.tolist() == [False], "P(planning) starts at 1"
+    arb.observe(step([0.2], end_error=[2.0], inputs=decision.inputs), np.ones(1, bool))  # small RPE, large SPE
     # chi's used for that step's transition were NaN (no statistics yet) -> 0: alpha = beta = A / 2
     p = 1.0 + 0.25 * (1 - 1.0) - 0.25 * 1.0
     assert arb.stats["p_planning"].item() == pytest.approx(p)
     assert arb.stats["habit_reliability"].item() == 1.0 and arb.stats["planning_reliability"].item() == 0.0
     for _ in range(3):
-        arb.use_habit(c)
-        arb.observe(step([0.2], end_error=[2.0]), np.ones(1, bool))
+        arb.observe(step([0.2], end_error=[2.0], inputs=arb.use_habit(c).inputs), np.ones(1, bool))
         alpha, beta = 0.5 / (1 + math.exp(6.0 * 1.0)), 0.5 / (1 + math.exp(6.0 * 0.0))
         p = p + alpha * (1 - p) - beta * p
     assert arb.stats["p_planning"].item() == pytest.approx(p, rel=1e-6)
-    assert arb.use_habit(c).tolist() == [True], "a reliable habit and an unreliable model: the habit acts"
-    assert set(arb.last_inputs) == {"habit_reliability", "planning_reliability", "p_planning"}
+    decision = arb.use_habit(c)
+    assert decision.habit.tolist() == [True], "a reliable habit and an unreliable model: the habit acts"
+    assert set(decision.inputs) == {"habit_reliability", "planning_reliability", "p_planning"}
+    # P moves by the reliabilities the step was decided on (its recorded inputs), not by later statistics
+    p, moved = arb.stats["p_planning"].item(), dict(decision.inputs, habit_reliability=torch.zeros(1))
+    arb.observe(step([0.2], end_error=[2.0], inputs=moved), np.ones(1, bool), adapt=False)
+    alpha, beta = 0.5 / (1 + math.exp(0.0)), 0.5 / (1 + math.exp(6.0 * 0.0))
+    assert arb.stats["p_planning"].item() == pytest.approx(p + alpha * (1 - p) - beta * p, rel=1e-6)
 
 
 def test_speed_accuracy_learns_the_time_cost_of_each_controller_by_sarsa():
-    arb = SpeedAccuracyArbitrator(cfg(speed_accuracy_window=1))  # rate 1: each entry is its last target
+    arb = SpeedAccuracyArbitrator(cfg(speed_accuracy={"window": 1}))  # rate 1: each entry is its last target
     one = np.ones(1, bool)
+    HABIT, PLAN = 0, 1  # the table's columns
     # an episode: plan at 10 cm (bin 5, cost 3), then a habit step at 3 cm (bin 3, cost 1) reaches
     arb.observe(step([0.0], before=[10.0], habit=[False]), one)
     assert arb.stats["pending_bin"].item() == 5 and arb.stats["pending_cost"].item() == PLANNING_COST
+    assert arb.stats["pending_controller"].item() == PLAN
     arb.observe(step([0.0], before=[3.0], habit=[True], done=[True], terminal=[True]), one)
-    assert arb.stats["time_planning_5"].item() == PLANNING_COST + HABIT_COST  # 3 + T(3, habit) (untried: its cost)
-    assert arb.stats["time_habit_3"].item() == HABIT_COST  # reached: nothing remains
-    assert math.isnan(arb.stats["pending_bin"].item())
+    table = arb.stats["table"][0]
+    assert table.shape == (len(arb.DISTANCE_EDGES) + 1, 2)
+    assert table[5, PLAN].item() == PLANNING_COST + HABIT_COST  # 3 + T(3, habit) (untried: its cost)
+    assert table[3, HABIT].item() == HABIT_COST  # reached: nothing remains
+    assert arb.stats["pending_bin"].item() == -1
     # a time limit adds a planning step's cost
     arb.observe(step([0.0], before=[1.5], habit=[True], done=[True], terminal=[False]), one)
-    assert arb.stats["time_habit_2"].item() == HABIT_COST + PLANNING_COST
+    assert arb.stats["table"][0, 2, HABIT].item() == HABIT_COST + PLANNING_COST
     # the planning phase teaches it nothing (the planner acts by schedule there, not by the rule's choice)
-    scheduled = SpeedAccuracyArbitrator(AgentConfig(agent="apac_speed_accuracy", planning_episodes=100))
+    scheduled = SpeedAccuracyArbitrator(AgentConfig(kind="apac_speed_accuracy", planning_episodes=100))
     early = step([0.0], before=[1.5], habit=[False], done=[True], terminal=[True])
     early.episode = np.full(1, 99)
     scheduled.observe(early, one)
-    assert all(torch.isnan(v).all() for v in scheduled.stats.values() if len(v)), scheduled.stats
+    assert torch.isnan(scheduled.stats["table"]).all() and (scheduled.stats["pending_bin"] == -1).all()
     early.episode = np.full(1, 100)
     scheduled.observe(early, one)
-    assert scheduled.stats["time_planning_2"].item() == PLANNING_COST
+    assert scheduled.stats["table"][0, 2, PLAN].item() == PLANNING_COST
 
     def decide(distance):
         state = torch.tensor([[distance, 0, 0, 0, 0, 0]], dtype=torch.float32)
-        return arb.use_habit(ctx(E=1, state=state)).item()
+        decision = arb.use_habit(ctx(E=1, state=state))
+        return decision.habit.item(), decision.inputs["planning_gain"].item()
 
-    assert decide(10.0) is True, "an untried habit (1) against planning's learned 4: the habit is tried"
-    arb.stats["time_habit_5"] = torch.tensor([4.5])
-    assert decide(10.0) is False and arb.last_inputs["planning_gain"].item() == pytest.approx(4.5 - 1 - (4 - 3))
-    arb.stats["time_habit_5"] = torch.tensor([4.0])  # a tie: the gain equals the extra cost, the habit acts
-    assert decide(10.0) is True and arb.last_inputs["planning_gain"].item() == PLANNING_COST - HABIT_COST
+    assert decide(10.0)[0] is True, "an untried habit (1) against planning's learned 4: the habit is tried"
+    arb.stats["table"][0, 5, HABIT] = 4.5
+    assert decide(10.0) == (False, pytest.approx(4.5 - 1 - (4 - 3)))
+    arb.stats["table"][0, 5, HABIT] = 4.0  # a tie: the gain equals the extra cost, the habit acts
+    assert decide(10.0) == (True, PLANNING_COST - HABIT_COST)
+
+
+def test_speed_accuracy_loads_the_flat_statistics_of_older_checkpoints():
+    """Checkpoints up to 936695d keep the table as flat time_{c}_{b} [E] entries and NaN-encoded pending_*."""
+    arb = SpeedAccuracyArbitrator(cfg())
+    flat = {f"time_{c}_{b}": torch.tensor([float("nan"), 10.0 * b + i])
+            for i, c in enumerate(("habit", "planning")) for b in range(6)}
+    arb.load_state_dict({**flat, "pending_bin": torch.tensor([float("nan"), 4.0]),
+                         "pending_habit": torch.tensor([float("nan"), 1.0]), "pending_cost": torch.tensor([0.5, 3.0])})
+    assert torch.isnan(arb.stats["table"][0]).all() and arb.stats["table"][1, 4].tolist() == [40.0, 41.0]
+    assert arb.stats["pending_bin"].tolist() == [-1, 4] and arb.stats["pending_controller"].tolist() == [-1, 1]
+    assert arb.stats["pending_bin"].dtype == torch.int64 and same(arb.stats["pending_cost"], torch.tensor([0.5, 3.0]))
+    assert set(arb.state_dict()) == {"table", "pending_bin", "pending_controller", "pending_cost"}
 
 
 def test_planning_phase_holds_for_every_new_rule():
     for name in NEW_KINDS:
-        arb = kinds.get(name).arbitrator(AgentConfig(agent=name, planning_episodes=100))
+        arb = kinds.get(name).arbitrator(AgentConfig(kind=name, planning_episodes=100))
         c = ctx(episode=99, last_delta=0.0, recent=torch.zeros(2, 3), state=torch.zeros(2, 6),
                 habit_action=torch.zeros(2, 2), predict_end=lambda a: torch.zeros(2, 2))
-        assert not arb.use_habit(c).any(), name
+        assert not arb.use_habit(c).habit.any(), name
 
 
 def test_vision_aware_rule_suppresses_or_checks_the_habit_in_the_dark():
     vision = torch.tensor([True, False])
-    arb = kinds.arbitrator_for(AgentConfig(agent="apac_vision", planning_episodes=0))
-    assert arb.use_habit(ctx(last_delta=0.0, vision=vision)).tolist() == [True, False]
-    assert arb.last_inputs["vision"].tolist() == [1.0, 0.0] and "abs_delta" in arb.last_inputs
-    check = kinds.arbitrator_for(AgentConfig(agent="apac_vision", planning_episodes=0, vision_aware_dark="check",
-                                             vision_check_ratio=0.5))
+    arb = kinds.arbitrator_for(AgentConfig(kind="apac_vision", planning_episodes=0))
+    decision = arb.use_habit(ctx(last_delta=0.0, vision=vision))
+    assert decision.habit.tolist() == [True, False]
+    assert decision.inputs["vision"].tolist() == [1.0, 0.0] and "abs_delta" in decision.inputs
+    check = kinds.arbitrator_for(AgentConfig(kind="apac_vision", planning_episodes=0,
+                                             params={"vision_aware": {"dark": "check", "check_ratio": 0.5}}))
     state = torch.tensor([[10.0, 0, 0, 0, 0, 0]] * 2)
     for predicted, expected in ((4.9, [True, True]), (5.1, [True, False])):
         c = ctx(last_delta=0.0, vision=vision, state=state, habit_action=torch.zeros(2, 2),
                 predict_end=lambda a, x=predicted: torch.tensor([[x, 0.0]] * 2))
-        assert check.use_habit(c).tolist() == expected
+        assert check.use_habit(c).habit.tolist() == expected
     with pytest.raises(ValueError, match="itself vision-aware"):
-        kinds.arbitrator_for(AgentConfig(agent="apac_vision", vision_aware_base="apac_vision"))
-    with pytest.raises(ValueError, match="unknown agent kind"):
-        cfg(vision_aware_base="nope")
+        kinds.arbitrator_for(AgentConfig(kind="apac_vision", params={"vision_aware": {"base": "apac_vision"}}))
+    with pytest.raises(ValueError, match="unknown agent kind 'nope'"):
+        kinds.check(cfg(vision_aware={"base": "nope"}))
+    with pytest.raises(ValueError, match=r"agent.vision_aware.dark must be 'suppress' or 'check', got 'peek'"):
+        cfg(vision_aware={"dark": "peek"})
 
 
 def test_state_dict_is_validated():
@@ -221,7 +250,7 @@ def test_resume_with_running_statistics_equals_uninterrupted(tmp_path, agent, ta
 
 def test_a_kind_without_statistics_refuses_a_state():
     with pytest.raises(ValueError, match="keeps no statistics"):
-        kinds.arbitrator_for(AgentConfig(agent="apac"), {"habit_var": torch.zeros(2)})
+        kinds.arbitrator_for(AgentConfig(kind="apac"), {"habit_var": torch.zeros(2)})
 
 
 def test_recordings_show_which_controller_acted_and_why(tmp_path):

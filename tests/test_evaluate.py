@@ -20,7 +20,7 @@ TINY = dict(actor_hidden=(16, 16), critic_hidden=(16, 16), forward_hidden=(16, 1
 
 def _train(tmp_path_factory, agent: str, task: str = "changing_target"):
     cfg = TrainConfig(task=task, seeds=(0, 1), episodes=3, checkpoint_every=3, actuation="kinematic",
-                      agent=AgentConfig(agent=agent, **TINY))
+                      agent=AgentConfig(kind=agent, **TINY))
     return train(cfg, tmp_path_factory.mktemp(f"{agent}_{task}"), progress=False)
 
 
@@ -138,11 +138,11 @@ def test_bad_arguments(apac_run, tmp_path):
 def test_protocol_environments_keep_the_vision_under_test(task, overrides, grid_vision):
     """grid/generalization test the task's noisy or intermittent vision (occluded tasks: perfect); the
     occluded protocol is clean occlusion whatever the task's vision."""
-    from apac_mj.config import task_spec
+    from apac_mj.suite import spec_for
     from apac_mj.run.evaluate import _eval_env
 
     cfg = TrainConfig(task=task, seeds=(0,), task_overrides=overrides)
-    spec, lengths = task_spec(cfg), np.array([[5.0, 8.0]])
+    spec, lengths = spec_for(cfg), np.array([[5.0, 8.0]])
     vision = lambda env: (env.spec.vision, env.spec.vision_noise_std, env.spec.vision_seen_probability)
     assert vision(_eval_env(cfg, spec, lengths, occluded=False)) == grid_vision
     assert vision(_eval_env(cfg, spec, lengths, occluded=True)) == ("occluded", 0.0, 1.0)

@@ -6,7 +6,8 @@ import pytest
 import torch
 
 from apac_mj.agent.agent import Agent
-from apac_mj.config import AgentConfig, TrainConfig, task_spec
+from apac_mj.config import AgentConfig, TrainConfig
+from apac_mj.suite import spec_for
 from apac_mj.kinematics import Geometry
 from apac_mj.suite.task_spec import TaskSpecError
 from apac_mj.suite.vec_env import VecEnv
@@ -21,9 +22,9 @@ def _elsewhere_env(actuation: str = "kinematic") -> VecEnv:
 
 
 def test_geometry_comes_from_the_task():
-    g = Geometry.from_spec(task_spec(TrainConfig(task="changing_target", task_overrides=ELSEWHERE)))
+    g = Geometry.from_spec(spec_for(TrainConfig(task="changing_target", task_overrides=ELSEWHERE)))
     assert g.origin == (10.0, 12.0) and g.joint_range == (-30.0, 200.0) and g.plane_size == (30.0, 30.0)
-    unbounded = task_spec(TrainConfig(task="changing_target", task_overrides={"at_limit": "unbounded"}))
+    unbounded = spec_for(TrainConfig(task="changing_target", task_overrides={"at_limit": "unbounded"}))
     assert Geometry.from_spec(unbounded).joint_range is None
 
 
@@ -31,7 +32,7 @@ def test_the_agents_feasible_range_is_the_plants_at_another_origin_and_range():
     env = _elsewhere_env()
     obs = env.reset()
     state = torch.as_tensor(np.concatenate([obs.arm, obs.target], 1), dtype=torch.float32)
-    spec = task_spec(TrainConfig(task="changing_target", task_overrides=ELSEWHERE))
+    spec = spec_for(TrainConfig(task="changing_target", task_overrides=ELSEWHERE))
     agent = Agent(AgentConfig(**SMALL), [0], geometry=Geometry.from_spec(spec))
     np.testing.assert_allclose(agent.geometry.joint_angles(state[:, 0:2], state[:, 2:4]).numpy(), [[0.0, 180.0]],
                                atol=1e-3)
@@ -67,4 +68,4 @@ def test_the_agent_takes_the_plane_from_the_task():
                                                   ((90.0, 0.0), "low < high")])
 def test_a_joint_range_the_arm_cannot_start_in_is_refused(joint_range, message):
     with pytest.raises(TaskSpecError, match=message):
-        task_spec(TrainConfig(task="changing_target", task_overrides={"joint_range": joint_range}))
+        spec_for(TrainConfig(task="changing_target", task_overrides={"joint_range": joint_range}))

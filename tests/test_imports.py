@@ -108,7 +108,7 @@ def test_no_cycle_at_type_level():
 
 #: Layers, lowest first: (rank, module-name prefixes). A prefix ending in "." names a package's modules.
 LAYERS = (
-    (0, ("apac_mj.util.", "apac_mj.util", "apac_mj.types", "apac_mj.kinematics", "apac_mj.config", "apac_mj.kinds")),
+    (0, ("apac_mj.util", "apac_mj.types", "apac_mj.kinematics", "apac_mj.config", "apac_mj.kinds", "apac_mj.rules")),
     (1, ("apac_mj.suite", "apac_mj.agent")),
     (2, ("apac_mj.run",)),
     (3, ("apac_mj.recording", "apac_mj.experiments")),

@@ -7,7 +7,9 @@ import numpy as np
 import pytest
 import torch
 
-from apac_mj.agent.integrator import KalmanIntegrator, PassThrough, integrate
+from apac_mj.agent.integrator import KalmanIntegrator, PassThrough, build, integrate
+from apac_mj.config import AgentConfig
+from apac_mj.types import Integrator
 
 ALL = np.ones
 
@@ -263,3 +265,36 @@ def test_bad_inputs_are_refused(args, problem):
 def test_bad_settings_are_refused(kwargs, problem):
     with pytest.raises(ValueError, match=problem):
         KalmanIntegrator(2, **kwargs)
+
+
+# -- (g) the base class and the registry --------------------------------------------------------------
+def test_the_base_class_gives_an_integrator_its_defaults():
+    """An integrator implementing only reset and update: nothing kept, learning switchable (``adapt``)."""
+    class Hold(Integrator):
+        def reset(self, mask, seen_state):
+            pass
+
+        def update(self, prior_state, predicted_arm, observed_state, vision, active):
+            return prior_state
+
+    f = Hold(2)
+    assert f.adapt and f.state_dict() == {} and f.E == 2
+    f.load_state_dict({})
+    with pytest.raises(ValueError, match=r"Hold has no state; got keys \['P'\]"):
+        f.load_state_dict({"P": torch.zeros(2, 6)})
+    with pytest.raises(ValueError, match="E must be an int >= 1, got 0"):
+        Hold(0)
+    assert isinstance(PassThrough(1), Integrator) and not isinstance(KalmanIntegrator(1, 0.0), PassThrough)
+
+
+def test_the_kalman_table_reaches_the_filter():
+    cfg = AgentConfig(integrator="kalman", params={"kalman": {"window": 7, "process_floor": 0.5,
+                                                             "initial_process_var": 0.125}})
+    f = build(cfg, 2, obs_std=0.25)
+    assert isinstance(f, KalmanIntegrator) and (f.window, f.process_floor, f.initial_process_var, f.R) == (
+        7, 0.5, 0.125, 0.0625)
+    assert isinstance(build(AgentConfig(), 2, obs_std=0.25), PassThrough)
+    with pytest.raises(ValueError, match=r"agent.kalman.window must be >= 1, got 0"):
+        AgentConfig(params={"kalman": {"window": 0}})
+    with pytest.raises(ValueError, match=r"integrator must be one of \('pass_through', 'kalman'\), got 'ukf'"):
+        AgentConfig(integrator="ukf")

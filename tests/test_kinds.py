@@ -12,23 +12,25 @@ import torch
 from apac_mj.experiments import grid
 from apac_mj import kinds, report
 from apac_mj.agent.arbitration import HISTORY
-from apac_mj.types import ArbitrationContext
+from apac_mj.types import ArbitrationContext, Arbitrator, Decision
 from apac_mj.config import AgentConfig
 
 PACKAGE = Path(__file__).resolve().parents[1] / "apac_mj"
 
 
-class EveryOtherStep:
-    """A rule the built-ins cannot express: the habit on even steps; it also keeps every context it saw."""
+class EveryOtherStep(Arbitrator):
+    """A rule the built-ins cannot express, implementing only ``use_habit`` (the base class's no-op
+    ``observe``, ``state_dict`` and ``load_state_dict`` do the rest): the habit on even steps; it also keeps
+    every context it saw."""
 
     seen: list[ArbitrationContext] = []
 
     def __init__(self, cfg: AgentConfig) -> None:
         self.cfg = cfg
 
-    def use_habit(self, ctx: ArbitrationContext) -> torch.Tensor:
+    def use_habit(self, ctx: ArbitrationContext) -> Decision:
         EveryOtherStep.seen.append(ctx)
-        return ctx.step % 2 == 0
+        return Decision(ctx.step % 2 == 0)
 
 
 DUMMY = kinds.AgentKind("every_other", "Every other step", "tab:pink", EveryOtherStep)
@@ -102,25 +104,61 @@ def test_registry_refuses_bad_kinds():
     with pytest.raises(ValueError, match="built-in"):
         kinds.unregister("ddpg")
     with pytest.raises(ValueError, match="unknown agent kind 'nope'; registered kinds: ddpg, spac, apac"):
-        AgentConfig(agent="nope")
+        kinds.check(AgentConfig(kind="nope"))
+
+
+def test_a_factory_must_build_an_arbitrator():
+    class Duck:  # the old duck-typed contract: a bare tensor, no base class
+        def use_habit(self, ctx):
+            return torch.ones(ctx.E, dtype=torch.bool)
+
+    kinds.register(kinds.AgentKind("duck", "Duck", "k", lambda cfg: Duck()))
+    try:
+        with pytest.raises(TypeError, match="agent kind 'duck' built a Duck, not an apac_mj.types.Arbitrator"):
+            kinds.arbitrator_for(AgentConfig(kind="duck"))
+    finally:
+        kinds.unregister("duck")
+
+
+def test_the_base_class_keeps_no_statistics():
+    rule = EveryOtherStep(AgentConfig())
+    rule.observe(None, np.ones(2, dtype=bool), adapt=True)  # a no-op: nothing to learn
+    assert rule.state_dict() == {}
+    rule.load_state_dict({})
+    with pytest.raises(ValueError, match=r"EveryOtherStep rule keeps no statistics, but the checkpoint has \['x'\]"):
+        rule.load_state_dict({"x": torch.zeros(2)})
+
+
+@pytest.mark.parametrize("kind", ["ddpg", "spac"])
+def test_habit_formation_is_refused_for_kinds_that_do_not_arbitrate(kind):
+    kinds.check(AgentConfig(kind="apac", habit_distillation_weight=50.0))
+    with pytest.raises(ValueError, match=f"habit_distillation_weight = 50.0 needs a kind that arbitrates.*'{kind}'"):
+        kinds.check(AgentConfig(kind=kind, habit_distillation_weight=50.0))
 
 
 def test_use_habit_must_return_one_bool_per_member():
     from apac_mj.run.rollout import select_action
 
-    class Wrong:
+    class Wrong(Arbitrator):
         def use_habit(self, ctx):
-            return torch.ones(ctx.E + 1, dtype=torch.bool)
+            return Decision(torch.ones(ctx.E + 1, dtype=torch.bool))
+
+    class Bare(Arbitrator):
+        def use_habit(self, ctx):
+            return torch.ones(ctx.E, dtype=torch.bool)
 
     ctx = ArbitrationContext(torch.zeros(2, dtype=torch.long), torch.zeros(2, dtype=torch.long), torch.zeros(2),
                              state=torch.zeros(2, 6))
     with pytest.raises(ValueError, match=r"Wrong.use_habit must return \[E\] = \(2,\) bools"):
         select_action(None, Wrong(), ctx, np.ones(2, dtype=bool), explore=False)
+    with pytest.raises(ValueError, match=r"Bare.use_habit must return a Decision\(habit \[E\] bools, inputs\), got"):
+        select_action(None, Bare(), ctx, np.ones(2, dtype=bool), explore=False)
 
 
 def test_kind_names_appear_only_in_the_registry_and_the_papers_table():
-    """No module tests a kind's name: string constants equal to a built-in name live only in kinds.py
-    and in the report's table of the paper's values (PAPER, apac_mj/report/quantities.py)."""
+    """No module tests a kind's name: string constants equal to a built-in name live only in kinds.py,
+    in the report's table of the paper's values (PAPER, apac_mj/report/quantities.py) and in rules.py's
+    DEFAULT_KIND."""
     found = []
     for path in sorted(PACKAGE.rglob("*.py")):
         if path.name == "kinds.py":
@@ -128,7 +166,8 @@ def test_kind_names_appear_only_in_the_registry_and_the_papers_table():
         tree = ast.parse(path.read_text())
         allowed = set()
         for node in ast.walk(tree):
-            if isinstance(node, ast.Assign) and any(getattr(t, "id", None) == "PAPER" for t in node.targets):
+            if isinstance(node, ast.Assign) and any(getattr(t, "id", None) in ("PAPER", "DEFAULT_KIND")
+                                                    for t in node.targets):
                 allowed |= {id(n) for n in ast.walk(node)}
         for node in ast.walk(tree):
             if isinstance(node, ast.Constant) and node.value in kinds.BUILTIN and id(node) not in allowed:

@@ -41,7 +41,7 @@ SMALL = dict(actor_hidden=(32, 32), critic_hidden=(32, 32), forward_hidden=(32, 
 
 def run(tmp_path, agent: str, task: str, episodes: int, seeds=(0, 1, 2, 3), **kw) -> pd.DataFrame:
     cfg = TrainConfig(task=task, seeds=tuple(seeds), episodes=episodes, checkpoint_every=episodes,
-                      actuation="kinematic", agent=AgentConfig(agent=agent, **{**SMALL, **kw}))
+                      actuation="kinematic", agent=AgentConfig(kind=agent, **{**SMALL, **kw}))
     df = pd.read_parquet(train(cfg, tmp_path / f"{agent}_{task}", progress=False) / "metrics.parquet")
     return df[df.phase == "train"]
 

@@ -150,18 +150,18 @@ def test_replay_bad_shape_and_empty():
     ("apac", [False, True, True, True, True, False]),
 ])
 def test_arbitrator_decision_table(mode, expected):
-    arb = arbitrator_for(AgentConfig(agent=mode))
+    arb = arbitrator_for(AgentConfig(kind=mode))
     episode = torch.tensor([50, 100, 100, 150, 100, 150])
     step = torch.tensor([0, 0, 1, 1, 2, 5])
     delta = torch.tensor([0.1, 5.0, 0.5, -3.0, -0.99, 1.0])
-    assert arb.use_habit(ArbitrationContext(episode, step, delta)).tolist() == expected
+    assert arb.use_habit(ArbitrationContext(episode, step, delta)).habit.tolist() == expected
 
 
 def test_arbitrator_apac_planning_phase_and_nan():
-    arb = arbitrator_for(AgentConfig(agent="apac"))
+    arb = arbitrator_for(AgentConfig(kind="apac"))
     ctx = ArbitrationContext
-    assert arb.use_habit(ctx(torch.tensor([99, 99]), torch.tensor([0, 5]), torch.tensor([0.0, 0.0]))).tolist() == [False, False]
-    assert arb.use_habit(ctx(torch.tensor([200]), torch.tensor([3]), torch.tensor([float("nan")]))).tolist() == [False]
+    assert arb.use_habit(ctx(torch.tensor([99, 99]), torch.tensor([0, 5]), torch.tensor([0.0, 0.0]))).habit.tolist() == [False, False]
+    assert arb.use_habit(ctx(torch.tensor([200]), torch.tensor([3]), torch.tensor([float("nan")]))).habit.tolist() == [False]
     with pytest.raises(ValueError, match="equal length"):
         arb.use_habit(ctx(torch.tensor([1, 2]), torch.tensor([1]), torch.tensor([0.0])))
 

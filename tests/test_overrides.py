@@ -11,6 +11,7 @@ from apac_mj.experiments import grid
 from apac_mj.util import overrides
 from apac_mj.cli import build_parser, main
 from apac_mj.commands import train as train_cmd
+from apac_mj import kinds, rules
 from apac_mj.config import AgentConfig, TrainConfig
 from apac_mj.experiments.presets import Preset
 from apac_mj.experiments.presets import Tests as PresetTests
@@ -47,6 +48,10 @@ def test_one_override_grammar_for_train_and_grid():
     ("batch_size=1.5", "agent.batch_size must be an integer, got 1.5"),
     ("normalize_inputs=maybe", "agent.normalize_inputs must be true or false"),
     ("task_overrides=3", "task_overrides must be a table"),
+    ("agent.uncertainty.window=abc", "agent.uncertainty.window must be an integer, got 'abc'"),
+    ("kalman.process_floor=x", "agent.kalman.process_floor must be a number, got 'x'"),
+    ("agent.reliability.windw=3", "agent.reliability: unknown ReliabilityParams field(s) ['windw']"),
+    ("agent.kalman=3", "agent.kalman is a table of KalmanParams fields"),
 ])
 def test_bad_values_are_refused_by_both_before_anything_runs(tmp_path, capsys, item, message):
     with pytest.raises(grid.PresetError, match="preset 'smoke'") as e:
@@ -59,6 +64,14 @@ def test_bad_values_are_refused_by_both_before_anything_runs(tmp_path, capsys, i
     assert main(["train", "--out", str(tmp_path / "t"), "--set", item]) == 2
     assert message in capsys.readouterr().err
     assert not any(tmp_path.iterdir())
+
+
+def test_a_rule_parameter_out_of_range_is_refused_naming_it(tmp_path, capsys):
+    message = "agent.speed_accuracy.window must be >= 1, got 0"
+    with pytest.raises(grid.PresetError, match=message):
+        grid.load_preset("smoke", ["agent.speed_accuracy.window=0"])
+    assert main(["train", "--out", str(tmp_path / "t"), "--set", "speed_accuracy.window=0"]) == 2
+    assert message in capsys.readouterr().err and not any(tmp_path.iterdir())
 
 
 def test_a_bad_task_override_is_refused_before_a_grid_writes(tmp_path):
@@ -82,17 +95,19 @@ def _help(argv: list[str], capsys) -> str:
 
 def test_every_field_and_its_doc_is_in_help(capsys):
     train_help, grid_help = _help(["train"], capsys), _help(["grid"], capsys)
-    for cls, prefix in ((TrainConfig, ""), (AgentConfig, ""), (Preset, ""), (PresetTests, "tests.")):
+    tables = [(table, f"{name}.") for name, table in rules.tables().items()]
+    for cls, prefix in ((TrainConfig, ""), (AgentConfig, ""), (Preset, ""), (PresetTests, "tests."), *tables):
         docs = overrides.field_docs(cls)
         for f in dataclasses.fields(cls):
-            if f.name in ("agent", "name", "run", "tests"):
+            if f.name in ("agent", "name", "run", "tests", "params", "kind"):
                 continue
             assert docs.get(f.name), f"{cls.__name__}.{f.name} has no doc"
             first = docs[f.name].split()[0]
             if f.name != "task":  # each cell's, not a preset key
-                assert f"{prefix}{f.name} = " in grid_help and first in grid_help
-            if cls in (TrainConfig, AgentConfig):
-                assert f"  {f.name} = " in train_help, f"{f.name} missing from train --help"
+                grid_prefix = f"agent.{prefix}" if (cls, prefix) in tables else prefix
+                assert f"{grid_prefix}{f.name} = " in grid_help and first in grid_help
+            if cls in (TrainConfig, AgentConfig) or (cls, prefix) in tables:
+                assert f"  {prefix}{f.name} = " in train_help, f"{f.name} missing from train --help"
 
 
 def test_field_docs_read_the_comments():
@@ -107,8 +122,30 @@ def test_field_docs_read_the_comments():
     assert overrides.field_docs(Example) == {"a": "First line, second line.", "b": "(section: a section)"}
 
 
+def test_a_rule_parameter_reaches_its_rule_from_the_command_line_and_presets(tmp_path):
+    sets = ["agent.uncertainty.window=50", "reliability.slope=3", "agent.kalman.window=100", "integrator=kalman"]
+    cfg = train_cmd.train_config(_train_args(*sets, "kind=apac_uncertainty"))
+    preset = grid.load_preset("smoke", sets + ["agents=apac_uncertainty"])
+    for c in (cfg, grid.cells(preset)[0].train_config(preset)):
+        assert c.agent.kind == "apac_uncertainty"
+        assert c.agent.params["uncertainty"] == rules.UncertaintyParams(window=50)
+        assert c.agent.params["reliability"].slope == 3.0 and c.agent.params["kalman"].window == 100
+        assert kinds.arbitrator_for(c.agent).rate == 1 / 50
+    (tmp_path / "p.toml").write_text('agents = ["apac_reliability"]\n[agent.reliability]\nrate = 0.25\n')
+    p = grid.load_preset(tmp_path / "p.toml")
+    assert kinds.arbitrator_for(p.train_config("changing_target", "apac_reliability").agent).A == 0.25
+
+
+def test_a_kind_that_cannot_take_the_config_is_refused_by_the_preset():
+    with pytest.raises(grid.PresetError, match="agent 'ddpg': habit_distillation_weight = 5.0 needs a kind"):
+        grid.load_preset("smoke", ["agent.habit_distillation_weight=5"])
+    with pytest.raises(grid.PresetError, match="unknown agent kind 'nope'"):
+        grid.load_preset("smoke", ["agent.vision_aware.base=nope"])
+
+
 def test_agent_overrides_for_scripts_use_the_same_grammar():
     assert train_cmd.agent_overrides(["batch_size=64", "agent.actor_hidden=64,64"]) == {
         "batch_size": 64, "actor_hidden": (64, 64)}
+    assert train_cmd.agent_overrides(["agent.kalman.window=9"]) == {"params": {"kalman": {"window": 9}}}
     with pytest.raises(ValueError, match="unknown AgentConfig field"):
         train_cmd.agent_overrides(["no_such=1"])

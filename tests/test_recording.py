@@ -158,7 +158,7 @@ def test_write_video_writes_every_frame(tmp_path, suffix):
 def _tiny_train_config(seeds=(0,)):
     from apac_mj.config import AgentConfig, TrainConfig
 
-    agent = AgentConfig(agent="apac", babbling_episodes=1, planning_episodes=1, batch_size=16, replay_size=64,
+    agent = AgentConfig(kind="apac", babbling_episodes=1, planning_episodes=1, batch_size=16, replay_size=64,
                         actor_hidden=(32, 32), critic_hidden=(32, 32), forward_hidden=(32, 32),
                         inverse_hidden=(32, 32))
     return TrainConfig(task="changing_target", seeds=seeds, episodes=3, agent=agent)
@@ -215,7 +215,7 @@ def test_record_command_writes_rrd_and_video(tmp_path, capsys):
     entities, props, blueprints = R.read_recording(out)
     frames = len(entities[R.RENDER].times["frame"])
     assert frames == len(list(iio.imiter(gif))) and frames >= 4
-    assert blueprints == 1 and props["agent.agent"] == ["apac"]
+    assert blueprints == 1 and props["agent.kind"] == ["apac"]
     texts = [t[0] for t in entities[R.EVENTS].components["TextLog:text"]]
     assert sum("starts: target" in t for t in texts) == 2 and any(t.startswith("occluded") for t in texts)
     assert "KB per step" in capsys.readouterr().out
@@ -252,13 +252,13 @@ def test_record_says_when_agent_or_task_differ_from_the_run(tiny_run, tmp_path, 
 
     run_dir, _ = tiny_run
     trained = json.loads((run_dir / "config.json").read_text())
-    other = "spac" if trained["agent"]["agent"] != "spac" else "apac"
+    other = "spac" if trained["agent"]["kind"] != "spac" else "apac"
     args = ["record", "--run", str(run_dir), "--episodes", "1", "--out", str(tmp_path / "o.rrd")]
     assert main(args) == 0
     assert "note:" not in capsys.readouterr().err
     assert main(args + ["--agent", other, "--task", "static_target"]) == 0
     err = capsys.readouterr().err
-    assert f"trained {trained['agent']['agent']}; recording its networks arbitrated as {other}" in err
+    assert f"trained {trained['agent']['kind']}; recording its networks arbitrated as {other}" in err
     assert f"trained on {trained['task']}; recording on static_target" in err
 
 

@@ -22,7 +22,7 @@ TINY = dict(actor_hidden=(16, 16), critic_hidden=(16, 16), forward_hidden=(16, 1
 
 def tiny_config(seeds=(0, 1), episodes=4, agent="apac", task="changing_target", **kw) -> TrainConfig:
     return TrainConfig(task=task, seeds=tuple(seeds), episodes=episodes, checkpoint_every=2, actuation="kinematic",
-                       agent=AgentConfig(agent=agent, **{**TINY, **kw}))
+                       agent=AgentConfig(kind=agent, **{**TINY, **kw}))
 
 
 def final_weights(run: Path) -> dict[str, torch.Tensor]:

@@ -76,7 +76,7 @@ def reference_grads(agent: Agent, k: int, b: dict[str, torch.Tensor]) -> dict[st
     pi = squash(_mlp(W["actor"], pos(s), torch.relu, torch.tanh), lo, hi)
     frozen = [w.detach() for w in W["critic"]]
     actor_loss = -_critic(frozen, cfg.critic_form, pos(s), act(pi)).mean()
-    if cfg.habit_distillation_weight and cfg.agent == "apac":
+    if cfg.habit_distillation_weight:
         plan = squash(_mlp([w.detach() for w in W["inverse_model"]], pos(s), torch.relu, torch.tanh), lo, hi)
         actor_loss = actor_loss + cfg.habit_distillation_weight * (((pi - plan) / 180) ** 2).sum(-1).mean()
     if cfg.feasibility_weight:
@@ -95,7 +95,7 @@ CONFIGS = {
     "raw_inputs": dict(normalize_inputs=False, action_squash="tanh"),
     "summed_critic": dict(critic_form="summed"),
     "feasibility_penalty": dict(feasibility_weight=1000.0, action_squash="tanh"),
-    "distillation": dict(agent="apac", habit_distillation_weight=10.0),
+    "distillation": dict(kind="apac", habit_distillation_weight=10.0),
     "summed_penalty": dict(critic_form="summed", feasibility_weight=3.0, action_squash="tanh"),
 }
 

@@ -25,7 +25,6 @@ import numpy as np
 import torch
 from torch import nn
 
-from apac_mj import kinds
 from apac_mj.agent.replay import EnsembleReplay
 from apac_mj.config import AgentConfig
 from apac_mj.kinematics import Geometry
@@ -48,7 +47,12 @@ def member_generators(seed: int) -> tuple[torch.Generator, torch.Generator, torc
 
 
 class Agent:
-    """E independent APAC agents; see docs/architecture.md for the contract."""
+    """E independent APAC agents (an :class:`apac_mj.types.Policy`): their proposals, forward model and TD
+    error for the episode loop, their replay memory and :meth:`update` for the trainer.
+
+    Construction switches on ``torch.set_flush_denormal`` for the process (docs/agent.md): tiny weights
+    flush to zero, as in every run the numbers were measured with.
+    """
 
     def __init__(self, cfg: AgentConfig, seeds: Sequence[int], device: str = "cpu",
                  precision: str = "fp32", geometry: Geometry | None = None) -> None:
@@ -64,9 +68,6 @@ class Agent:
         self.geometry = geometry or Geometry()
         self.plane_scale = _plane_scale(cfg, self.geometry)
         self.E = len(self.seeds)
-        #: Habit formation from planning acts only in kinds that arbitrate: without a planner there is
-        #: nothing to learn from (DDPG), without a habit nothing learns (SPAC).
-        self._distill = cfg.habit_distillation_weight if kinds.get(cfg.agent).arbitrates else 0.0
         gens = [member_generators(s) for s in self.seeds]
         init = [g[0] for g in gens]
         self.actor = build_actor(cfg.actor_hidden, init).to(self.device)
@@ -215,10 +216,11 @@ class Agent:
         u = self.actor(x).float()
         pi = self.to_action(u, s)
         actor_loss = -self.critic(x, self._act(pi), detach=True).float().mean(1)
-        if self._distill > 0:
+        if cfg.habit_distillation_weight > 0:  # kinds that arbitrate only (apac_mj.kinds.check)
             with torch.no_grad():
                 plan = self.to_action(self.inverse_model(x).float(), s)
-            actor_loss = actor_loss + self._distill * ((pi - plan) / cfg.action_scale).pow(2).sum(-1).mean(1)
+            distance = ((pi - plan) / cfg.action_scale).pow(2).sum(-1).mean(1)
+            actor_loss = actor_loss + cfg.habit_distillation_weight * distance
         if cfg.feasibility_weight > 0:
             excess = (pi - self.executable(pi, s)) / cfg.action_scale
             actor_loss = actor_loss + cfg.feasibility_weight * excess.pow(2).sum(-1).mean(1)

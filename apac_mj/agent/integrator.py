@@ -42,17 +42,25 @@ after a few hundred steps; with ``R = 0.5^2, q = 0.05^2`` its spread
 (~0.02) is several times ``q`` itself, and the floor catches the negative
 draws (tests/test_integrator.py measures both).
 
-Both classes share one interface (``reset``, ``update``, ``variance``,
-``state_dict``, ``load_state_dict``); the estimate itself is carried by the
-caller (``prior_state`` in, next estimate out).
+Both subclass :class:`apac_mj.types.Integrator` (``reset``, ``update``,
+``state_dict``, ``load_state_dict``, ``adapt``) and add ``variance``; the
+estimate itself is carried by the caller (``prior_state`` in, next estimate
+out). The Kalman filter's parameters are the table ``agent.kalman``
+(:class:`apac_mj.rules.KalmanParams`).
 """
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
+
+from apac_mj.rules import INTEGRATORS, KalmanParams
+from apac_mj.types import Integrator
+
+if TYPE_CHECKING:
+    from apac_mj.config import AgentConfig
 
 
 def integrate(observed: torch.Tensor, predicted: torch.Tensor, vision: torch.Tensor) -> torch.Tensor:
@@ -80,33 +88,30 @@ def _check(t: torch.Tensor, shape: tuple[int, ...], name: str) -> None:
         raise ValueError(f"{name} must be a tensor of shape {shape}, got {got}")
 
 
-class PassThrough:
+def _inputs(E: int, prior_state: torch.Tensor, predicted_arm: torch.Tensor, observed_state: torch.Tensor,
+            vision: Any, active: Any) -> tuple[torch.Tensor, torch.Tensor]:
+    """The shapes of an update's inputs checked; ``vision`` and ``active`` as ``[E]`` bool tensors."""
+    _check(prior_state, (E, 6), "prior_state")
+    _check(predicted_arm, (E, 4), "predicted_arm")
+    _check(observed_state, (E, 6), "observed_state")
+    return _mask(vision, E, prior_state.device, "vision"), _mask(active, E, prior_state.device, "active")
+
+
+class PassThrough(Integrator):
     """The paper's integrator: the seen position if seen, else the forward model's prediction."""
 
     name = "pass_through"
 
-    def __init__(self, E: int, device: torch.device | str = "cpu") -> None:
-        if not isinstance(E, int) or isinstance(E, bool) or E < 1:
-            raise ValueError(f"E must be an int >= 1, got {E!r}")
-        self.E, self.device = E, torch.device(device)
-
     def reset(self, mask: Any, seen_state: torch.Tensor) -> None:
-        """Start new episodes for the members in ``mask`` ``[E]`` from ``seen_state`` ``[E, 6]``."""
+        """Start new episodes for the members in ``mask`` ``[E]`` from ``seen_state`` ``[E, 6]`` (checks only)."""
         _mask(mask, self.E, self.device, "mask")
         _check(seen_state, (self.E, 6), "seen_state")
-
-    def _inputs(self, prior_state, predicted_arm, observed_state, vision, active):
-        E = self.E
-        _check(prior_state, (E, 6), "prior_state")
-        _check(predicted_arm, (E, 4), "predicted_arm")
-        _check(observed_state, (E, 6), "observed_state")
-        return _mask(vision, E, prior_state.device, "vision"), _mask(active, E, prior_state.device, "active")
 
     def update(self, prior_state: torch.Tensor, predicted_arm: torch.Tensor, observed_state: torch.Tensor,
                vision: Any, active: Any) -> torch.Tensor:
         """The next estimate ``[E, 6]``: arm observed if seen else predicted, target observed if seen else
         the prior's; rows of inactive members are ``prior_state``'s."""
-        vision, active = self._inputs(prior_state, predicted_arm, observed_state, vision, active)
+        vision, active = _inputs(self.E, prior_state, predicted_arm, observed_state, vision, active)
         arm = integrate(observed_state[:, :4], predicted_arm, vision)
         target = torch.where(vision[:, None], observed_state[:, 4:], prior_state[:, 4:])
         return torch.where(active[:, None], torch.cat([arm, target], dim=1), prior_state)
@@ -115,15 +120,8 @@ class PassThrough:
         """``[E, 6]`` per-coordinate variance of the estimate: none is modelled, zeros."""
         return torch.zeros(self.E, 6, device=self.device)
 
-    def state_dict(self) -> dict[str, torch.Tensor]:
-        return {}
 
-    def load_state_dict(self, d: dict[str, torch.Tensor]) -> None:
-        if d:
-            raise ValueError(f"{type(self).__name__} has no state; got keys {sorted(d)}")
-
-
-class KalmanIntegrator(PassThrough):
+class KalmanIntegrator(Integrator):
     """Per-coordinate scalar Kalman filters with an adaptive (Mehra) process variance; module doc."""
 
     name = "kalman"
@@ -147,8 +145,6 @@ class KalmanIntegrator(PassThrough):
         self.process_floor, self.window, self.initial_process_var = float(process_floor), window, \
             float(initial_process_var)
         self.process_var = None if process_var is None else float(process_var)
-        #: The process variance learns from the innovations (training); False: frozen (the tests).
-        self.adapt = True
         dev = self.device
         self.P = torch.full((E, 6), self.R, device=dev)
         self.ema_innovation_sq = torch.zeros(E, 4, device=dev)
@@ -172,7 +168,7 @@ class KalmanIntegrator(PassThrough):
     def update(self, prior_state: torch.Tensor, predicted_arm: torch.Tensor, observed_state: torch.Tensor,
                vision: Any, active: Any) -> torch.Tensor:
         """Predict and correct (module doc); returns the next estimate ``[E, 6]``, inactive rows unchanged."""
-        vision, active = self._inputs(prior_state, predicted_arm, observed_state, vision, active)
+        vision, active = _inputs(self.E, prior_state, predicted_arm, observed_state, vision, active)
         dev = self.device
         vision, active = vision.to(dev), active.to(dev)
         seen = vision & active
@@ -190,7 +186,8 @@ class KalmanIntegrator(PassThrough):
         return torch.where(active[:, None].to(prior_state.device), x.to(prior_state.device), prior_state)
 
     def _learn_q(self, seen: torch.Tensor, innovation: torch.Tensor) -> None:
-        """Fold this step's innovations of the ``seen`` members into the averages (``P`` is the pre-prediction one)."""
+        """Fold this step's innovations of the ``seen`` members into the averages (``P`` is the pre-prediction one;
+        not when frozen: ``adapt`` False)."""
         if self.process_var is not None or not self.adapt:
             return
         self.count = self.count + seen.long()
@@ -227,16 +224,13 @@ class KalmanIntegrator(PassThrough):
             setattr(self, key, t)
 
 
-#: The integrators by ``AgentConfig.integrator`` name.
-INTEGRATORS = {PassThrough.name: PassThrough, KalmanIntegrator.name: KalmanIntegrator}
-
-
-def build(cfg: Any, E: int, obs_std: float, device: torch.device | str = "cpu") -> PassThrough:
-    """The integrator ``cfg.integrator`` (an ``AgentConfig``) for ``E`` members; ``obs_std``: the task's
-    observation noise (cm, ``TaskSpec.observation_noise_std``), the Kalman filter's ``R``."""
+def build(cfg: AgentConfig, E: int, obs_std: float, device: torch.device | str = "cpu") -> Integrator:
+    """The integrator ``cfg.integrator`` (a name of :data:`apac_mj.rules.INTEGRATORS`) for ``E`` members;
+    ``obs_std``: the task's observation noise (cm, ``TaskSpec.observation_noise_std``), the Kalman filter's ``R``."""
     if cfg.integrator == KalmanIntegrator.name:
-        return KalmanIntegrator(E, obs_std, process_floor=cfg.kalman_process_floor, window=cfg.kalman_window,
-                                initial_process_var=cfg.kalman_initial_process_var, device=device)
+        params: KalmanParams = cfg.params[KalmanParams.table]
+        return KalmanIntegrator(E, obs_std, process_floor=params.process_floor, window=params.window,
+                                initial_process_var=params.initial_process_var, device=device)
     if cfg.integrator == PassThrough.name:
         return PassThrough(E, device)
     raise ValueError(f"integrator must be one of {sorted(INTEGRATORS)}, got {cfg.integrator!r}")

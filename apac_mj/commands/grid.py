@@ -28,7 +28,7 @@ def fields_help() -> str:
             + "\n\nRun fields (TrainConfig; the paper's 50 seeds unless set):\n"
             + field_help(TrainConfig, skip=("task", "agent"))
             + "\n\n[agent] fields (AgentConfig; agent.NAME=VALUE or NAME=VALUE):\n"
-            + field_help(AgentConfig, prefix="agent.", skip=("agent",)))
+            + field_help(AgentConfig, prefix="agent.", skip=("kind",)))
 
 
 def _preset_names() -> list[str]:

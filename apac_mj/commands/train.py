@@ -41,7 +41,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "success rate and habit share over the last 20 episodes of all seeds).",
                        epilog=EPILOG + "\n\nTrainConfig fields (--set KEY=VALUE; the flags above set some of them):\n"
                        + field_help(TrainConfig, skip=("agent",)) + "\n\nAgentConfig fields (--set NAME=VALUE or "
-                       "agent.NAME=VALUE):\n" + field_help(AgentConfig, skip=("agent",)),
+                       "agent.NAME=VALUE):\n" + field_help(AgentConfig, skip=("kind",)),
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--task", default=d.task, help=f"{doc['task']} (see apac-mj tasks; default {d.task})")
     p.add_argument("--agent", choices=kinds.names(), default=kinds.DEFAULT,
@@ -86,12 +86,12 @@ def agent_overrides(items: list[str]) -> dict:
     from apac_mj.util import overrides
     from apac_mj.config import AgentConfig
 
-    fields = {f.name for f in dataclasses.fields(AgentConfig)} - {"agent"}
+    fields = overrides.keys(AgentConfig) - {"kind"}
     data = overrides.apply_sets({}, items, agent_fields=fields, top_level=())
     stray = sorted(set(data) - {"agent"})
     if stray:
         raise overrides.OverrideError(f"--set: unknown AgentConfig field(s) {stray}; known: {', '.join(sorted(fields))}")
-    return overrides.typed_fields(AgentConfig, data.get("agent", {}), "--set agent.", skip=("agent",))
+    return overrides.typed_fields(AgentConfig, data.get("agent", {}), "--set agent.", skip=("kind",))
 
 
 def train_config(args: argparse.Namespace) -> TrainConfig:
@@ -100,10 +100,10 @@ def train_config(args: argparse.Namespace) -> TrainConfig:
     from apac_mj.config import AgentConfig, TrainConfig
 
     data = {"task": args.task, "episodes": args.episodes, "device": args.device, "precision": args.precision,
-            "checkpoint_every": args.checkpoint_every, "actuation": args.actuation, "agent": {"agent": args.agent}}
+            "checkpoint_every": args.checkpoint_every, "actuation": args.actuation, "agent": {"kind": args.agent}}
     if args.seeds is not None:
         data["seeds"] = parse_seeds(args.seeds)
-    agent_fields = {f.name for f in dataclasses.fields(AgentConfig)} - {"agent"}
+    agent_fields = overrides.keys(AgentConfig)
     top = {f.name for f in dataclasses.fields(TrainConfig)}
     overrides.apply_sets(data, args.overrides, agent_fields=agent_fields, top_level=top)
     if "seeds" in data and not isinstance(data["seeds"], tuple):

@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from apac_mj import kinds
-from apac_mj.config import TrainConfig, to_dict, train_config_from_dict
+from apac_mj.config import TrainConfig, migrate, to_dict, train_config_from_dict
 from apac_mj.experiments.executors import LocalExecutor
 from apac_mj.util.files import atomic_write_text, jsonable as _jsonable, read_json
 from apac_mj.experiments.presets import (CONDITIONS, TRAIN_REGION_SUFFIX, Preset, PresetError, Tests,  # noqa: F401
@@ -98,6 +98,7 @@ def cell_status(cell: Cell, preset: Preset, results: Path) -> tuple[str, str]:
     info, old = _cell_info(cell, preset), read_json(cell_dir / CELL_FILE)
     if old is None:
         return "to run", ""
+    old = {**old, "train_config": migrate(old["train_config"])}
     was, now = old["train_config"]["episodes"], info["train_config"]["episodes"]
     same_but_episodes = _strip_episodes(old) == _strip_episodes(info)
     if old != info and not (same_but_episodes and now > was):

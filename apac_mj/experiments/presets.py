@@ -5,7 +5,9 @@ A preset names the agent kinds, training conditions and tests of a grid
 every cell trains with: its top-level ``seeds``, ``episodes``,
 ``checkpoint_every``, ``device``, ``precision``, ``actuation`` and its
 ``[agent]`` table are :class:`~apac_mj.config.TrainConfig` and
-:class:`~apac_mj.config.AgentConfig` fields, documented there. Files and
+:class:`~apac_mj.config.AgentConfig` fields, documented there; the rules'
+and integrators' parameters are ``[agent.<table>]`` tables
+(:mod:`apac_mj.rules`: ``[agent.kalman]``, ``window = 100``). Files and
 ``--set`` overrides share one grammar (:mod:`apac_mj.util.overrides`); every key
 and value is checked when the preset is read, before anything runs, and a bad
 one raises :class:`PresetError` naming it.
@@ -81,6 +83,11 @@ class Preset:
 
     def __post_init__(self) -> None:
         _check_subset(self.name, "agents", self.agents, kinds.names())
+        for kind in self.agents:
+            try:
+                kinds.check(dataclasses.replace(self.run.agent, kind=kind))
+            except ValueError as e:
+                raise PresetError(f"preset {self.name!r}, agent {kind!r}: {e}") from None
         _check_subset(self.name, "conditions", self.conditions, known_conditions())
         _check_subset(self.name, "tests.generalization_conditions", self.tests.generalization_conditions,
                       known_conditions())
@@ -105,7 +112,7 @@ class Preset:
     def train_config(self, task: str, agent: str) -> TrainConfig:
         """The run of one cell: this preset's run on ``task`` with agent kind ``agent``."""
         run = copy.deepcopy(self.run)
-        return dataclasses.replace(run, task=task, agent=dataclasses.replace(run.agent, agent=agent))
+        return dataclasses.replace(run, task=task, agent=dataclasses.replace(run.agent, kind=agent))
 
 
 def known_conditions() -> tuple[str, ...]:
@@ -197,11 +204,12 @@ def _tests(tests: Any, name: str) -> Tests:
 
 
 def _agent_fields() -> set[str]:
-    return {f.name for f in dataclasses.fields(AgentConfig)} - {"agent"}
+    return overrides.keys(AgentConfig) - {"kind"}
 
 
 def _agent_table(agent: Any, name: str) -> dict[str, Any]:
-    """The [agent] table typed by AgentConfig's fields (the kind is each cell's, so ``agent`` is refused)."""
+    """The [agent] table typed by AgentConfig's fields and tables (the kind is each cell's, so ``kind`` is
+    refused)."""
     if not isinstance(agent, dict):
         raise PresetError(f"preset {name!r}: [agent] must be a table of AgentConfig overrides")
     unknown = sorted(set(agent) - _agent_fields())

@@ -17,11 +17,12 @@ from tqdm.auto import tqdm
 
 from apac_mj import kinds
 from apac_mj.agent.agent import Agent
-from apac_mj.config import AgentConfig, TrainConfig, task_spec
+from apac_mj.config import AgentConfig, TrainConfig
 from apac_mj.kinematics import Geometry
 from apac_mj.recording.recording import RENDER, EpisodeRecorder, read_recording
 from apac_mj.run.rollout import EpisodeLoop
 from apac_mj.run.run_dir import RunDir, config_dict, load_run, say, training_env
+from apac_mj.suite import spec_for
 from apac_mj.suite.render import write_video
 from apac_mj.suite.vec_env import VecEnv
 
@@ -85,16 +86,16 @@ def load_agent(run: str | Path | None, task: str | None, agent: str | None, seed
     the integrator's running statistics): from a run's newest checkpoint (on the CPU in fp32), or fresh
     networks seeded from ``seed``."""
     if run is None:
-        cfg = TrainConfig(task=task or "changing_target", seeds=(seed,), agent=AgentConfig(agent=agent or kinds.DEFAULT))
-        net = Agent(cfg.agent, cfg.seeds, geometry=Geometry.from_spec(task_spec(cfg)))
+        cfg = TrainConfig(task=task or "changing_target", seeds=(seed,), agent=AgentConfig(kind=agent or kinds.DEFAULT))
+        net = Agent(cfg.agent, cfg.seeds, geometry=Geometry.from_spec(spec_for(cfg)))
         return cfg, net, cfg.agent.planning_episodes if as_episode is None else as_episode, None, {}
     cfg, net, ckpt = load_run(run, device="cpu", precision="fp32")
     if member >= len(cfg.seeds):
         raise ValueError(f"--member {member} out of range: the run has {len(cfg.seeds)} seeds {list(cfg.seeds)}")
-    trained_kind = cfg.agent.agent
+    trained_kind = cfg.agent.kind
     _say_overrides(run, task, agent, seed, cfg)
     if agent is not None:
-        cfg.agent.agent = kinds.get(agent).name
+        cfg.agent.kind = kinds.get(agent).name
     env_state = ckpt.env if task in (None, cfg.task) else None
     cfg.task = task or cfg.task
     running = ckpt.running_statistics()
@@ -105,8 +106,8 @@ def load_agent(run: str | Path | None, task: str | None, agent: str | None, seed
 
 def _say_overrides(run: str | Path, task: str | None, agent: str | None, seed: int, cfg: TrainConfig) -> None:
     """With a run, an agent kind or task other than the run's is allowed but said."""
-    if agent not in (None, cfg.agent.agent):
-        say(f"note: {run} trained {cfg.agent.agent}; recording its networks arbitrated as {agent} "
+    if agent not in (None, cfg.agent.kind):
+        say(f"note: {run} trained {cfg.agent.kind}; recording its networks arbitrated as {agent} "
             f"(--agent {agent})")
     if task not in (None, cfg.task):
         say(f"note: {run} trained on {cfg.task}; recording on {task} (--task) with fresh environments "

@@ -36,11 +36,12 @@ from tqdm.auto import tqdm
 
 from apac_mj.agent.agent import Agent
 from apac_mj.types import HABIT_COST, PLANNING_COST  # the time cost of one action (re-exported here)
-from apac_mj.config import TrainConfig, task_spec
+from apac_mj.config import TrainConfig
 from apac_mj.kinematics import angle_grid, motion_function
 from apac_mj.kinds import arbitrator_for, get as get_kind
 from apac_mj.run.rollout import EpisodeLoop, Hook, OnEpisodeStart, OnStep, as_hooks
 from apac_mj.run.run_dir import RunDir, load_run
+from apac_mj.suite import spec_for
 from apac_mj.suite.task_spec import TaskSpec
 from apac_mj.suite.vec_env import VecEnv
 
@@ -71,14 +72,14 @@ def evaluate(run_dir: str | Path, protocols: Sequence[str] = ("grid", "occluded"
         raise ValueError(f"region must be 'test' or 'train', got {region!r}")
     run = RunDir(run_dir)
     cfg, agent, ckpt = load_run(run.path, device)
-    spec = task_spec(cfg)
+    spec = spec_for(cfg)
     lengths, own = ckpt.member_lengths(), ckpt.member_targets()
     hooks = as_hooks(hooks, on_step, on_episode_start)
     summary = run.eval_summary()
-    summary.update(run_dir=str(run.path), agent=cfg.agent.agent, task=cfg.task, seeds=list(cfg.seeds),
+    summary.update(run_dir=str(run.path), agent=cfg.agent.kind, task=cfg.task, seeds=list(cfg.seeds),
                    finished=run.finished())
     for protocol in protocols:
-        kind = get_kind(cfg.agent.agent)
+        kind = get_kind(cfg.agent.kind)
         if protocol == "occluded" and not kind.acts_occluded:
             reason = kind.occluded_reason or f"{kind.label} does not act without vision"
             summary.setdefault("protocols", {})[protocol] = {"applicable": False, "reason": reason}

@@ -35,11 +35,11 @@ from typing import Any, Callable, Iterator, Sequence
 import numpy as np
 import torch
 
-from apac_mj.agent.arbitration import HISTORY, Arbitrator, push_delta, restore
+from apac_mj.agent.arbitration import HISTORY, push_delta
 from apac_mj.agent import integrator as integrators
 from apac_mj.suite.planar_arm import ACTION_BOUND
 from apac_mj.suite.vec_env import VecEnv
-from apac_mj.types import ArbitrationContext, Observation, StepInfo
+from apac_mj.types import ArbitrationContext, Arbitrator, Decision, Integrator, Observation, Policy, StepInfo
 
 
 #: A hook's methods as plain functions: ``on_step(info, vec_env)``, ``on_episode_start(members, vec_env)``.
@@ -144,9 +144,8 @@ class EpisodeState:
         self.plan_n += counted & ~info.habit
         self.step += mask
 
-    def context(self, episode: np.ndarray, agent: Any, zone_radius: float = 0.5) -> ArbitrationContext:
+    def context(self, episode: np.ndarray, agent: Policy, zone_radius: float = 0.5) -> ArbitrationContext:
         """The arbitrator's view of every member at this step (``episode`` as the arbitrator reads it)."""
-        uncertainty = agent.uncertainty(self.state) if hasattr(agent, "uncertainty") else {}
         state = self.state
 
         def predict_end(action: torch.Tensor) -> torch.Tensor:
@@ -156,7 +155,7 @@ class EpisodeState:
         return ArbitrationContext(episode=torch.tensor(episode), step=torch.tensor(self.step),
                                   last_delta=torch.tensor(self.last_delta, dtype=torch.float32),
                                   recent_deltas=torch.tensor(self.recent_deltas, dtype=torch.float32),
-                                  vision=torch.tensor(self.vision), state=state, uncertainty=uncertainty,
+                                  vision=torch.tensor(self.vision), state=state,
                                   forward_error=torch.tensor(self.forward_error, dtype=torch.float32),
                                   habit_action=agent.actor_action(state), predict_end=predict_end,
                                   zone_radius=float(zone_radius))
@@ -169,11 +168,16 @@ def estimate_error(info: StepInfo) -> np.ndarray:
     return np.linalg.norm((info.next_state - truth).reshape(-1, 3, 2), axis=-1).mean(-1)
 
 
-def select_action(agent: Any, arbitrator: Arbitrator, ctx: ArbitrationContext, active: np.ndarray,
-                  explore: bool) -> tuple[torch.Tensor, torch.Tensor]:
-    """The arbitrator's choice between the actor's and the inverse model's proposals (+ OU noise)."""
+def select_action(agent: Policy, arbitrator: Arbitrator, ctx: ArbitrationContext, active: np.ndarray,
+                  explore: bool) -> tuple[torch.Tensor, Decision]:
+    """The arbitrator's choice between the actor's and the inverse model's proposals (+ OU noise), and its
+    decision (``habit`` on the agent's device)."""
     state = ctx.state
-    habit = torch.as_tensor(arbitrator.use_habit(ctx), dtype=torch.bool).to(state.device)
+    decision = arbitrator.use_habit(ctx)
+    if not isinstance(decision, tuple) or len(decision) != 2:
+        raise ValueError(f"{type(arbitrator).__name__}.use_habit must return a Decision(habit [E] bools, inputs), "
+                         f"got {type(decision).__name__}")
+    habit = torch.as_tensor(decision[0], dtype=torch.bool).to(state.device)
     if tuple(habit.shape) != (ctx.E,):
         raise ValueError(f"{type(arbitrator).__name__}.use_habit must return [E] = ({ctx.E},) bools, "
                          f"got shape {tuple(habit.shape)}")
@@ -182,13 +186,12 @@ def select_action(agent: Any, arbitrator: Arbitrator, ctx: ArbitrationContext, a
     if explore:
         sigma = agent.cfg.ou_sigma_at(ctx.episode.numpy())
         proposal = proposal + agent.noise.sample(torch.as_tensor(active), sigma).to(state.device)
-    return proposal.clamp(-ACTION_BOUND, ACTION_BOUND), habit
+    return proposal.clamp(-ACTION_BOUND, ACTION_BOUND), Decision(habit, dict(decision[1]))
 
 
-def decision_inputs(arbitrator: Arbitrator) -> dict[str, np.ndarray]:
-    """The arbitrator's ``last_inputs`` (``name -> [E]``) as float numpy arrays (empty if it keeps none)."""
-    return {k: torch.as_tensor(v).detach().float().cpu().numpy().copy()
-            for k, v in getattr(arbitrator, "last_inputs", {}).items()}
+def decision_inputs(decision: Decision) -> dict[str, np.ndarray]:
+    """A decision's inputs (``name -> [E]``) as float numpy arrays."""
+    return {k: torch.as_tensor(v).detach().float().cpu().numpy().copy() for k, v in decision.inputs.items()}
 
 
 Override = Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
@@ -203,8 +206,8 @@ class EpisodeLoop:
     are the frozen episode that evaluation and recordings run.
     """
 
-    def __init__(self, agent: Any, arbitrator: Arbitrator, env: VecEnv, zone_radius: float | None = None,
-                 hooks: Sequence[Hook] = (), adapt: bool = True, integrator: Any = None) -> None:
+    def __init__(self, agent: Policy, arbitrator: Arbitrator, env: VecEnv, zone_radius: float | None = None,
+                 hooks: Sequence[Hook] = (), adapt: bool = True, integrator: Integrator | None = None) -> None:
         self.agent, self.arbitrator, self.env, self.zone_radius = agent, arbitrator, env, zone_radius
         self.hooks = _checked(hooks)
         #: The arbitrator's and the integrator's running statistics learn from the steps (training);
@@ -213,17 +216,15 @@ class EpisodeLoop:
         #: The state estimate (apac_mj.agent.integrator): default ``agent.cfg.integrator`` with the task's noise.
         self.integrator = integrator if integrator is not None else integrators.build(
             agent.cfg, env.E, env.spec.observation_noise_std, agent.device)
-        if hasattr(self.integrator, "adapt"):
-            self.integrator.adapt = adapt
+        self.integrator.adapt = adapt
 
     def state_dict(self) -> dict[str, Any]:
         """The running statistics a checkpoint keeps: the arbitrator's and the integrator's."""
-        arbitrator = self.arbitrator.state_dict() if hasattr(self.arbitrator, "state_dict") else {}
-        return {"arbitrator": arbitrator, "integrator": self.integrator.state_dict()}
+        return {"arbitrator": self.arbitrator.state_dict(), "integrator": self.integrator.state_dict()}
 
     def load_state_dict(self, d: dict[str, Any]) -> None:
         """Restore :meth:`state_dict` (missing parts: kept as built; a checkpoint from before them)."""
-        restore(self.arbitrator, d.get("arbitrator"))
+        self.arbitrator.load_state_dict(d.get("arbitrator") or {})
         if "integrator" in d:
             self.integrator.load_state_dict(d["integrator"])
 
@@ -244,12 +245,12 @@ class EpisodeLoop:
         replace the action (the trainer's babbling), step the ``active`` members."""
         radius = self.env.spec.zone_radius if self.zone_radius is None else self.zone_radius
         ctx = st.context(episode if arbitration_episode is None else arbitration_episode, self.agent, radius)
-        action, habit = select_action(self.agent, self.arbitrator, ctx, active, explore)
-        inputs = decision_inputs(self.arbitrator)
+        action, decision = select_action(self.agent, self.arbitrator, ctx, active, explore)
+        habit, inputs = decision.habit, decision_inputs(decision)
         if override is not None:
             action, habit = override(action, habit)
-        info = agent_step(self.agent, self.env, st.state, episode, st.step, active, action, habit,
-                          zone_radius=self.zone_radius, integrator=self.integrator)
+        info = agent_step(self.agent, self.env, self.integrator, st.state, episode, st.step, active, action, habit,
+                          zone_radius=radius)
         info.arbitration = inputs
         return info
 
@@ -257,8 +258,7 @@ class EpisodeLoop:
                 next_state: np.ndarray | None = None) -> None:
         """Carry ``st`` past ``info`` (see :meth:`EpisodeState.advance`), then the step hook."""
         st.advance(info, active, counted, next_state)
-        if hasattr(self.arbitrator, "observe"):
-            self.arbitrator.observe(info, active if counted is None else counted, self.adapt)
+        self.arbitrator.observe(info, active if counted is None else counted, self.adapt)
         for hook in self.hooks:
             hook.on_step(info, self.env)
 
@@ -302,14 +302,13 @@ def _checked(hooks: Sequence[Hook]) -> list[Hook]:
     return list(hooks)
 
 
-def agent_step(agent: Any, vec_env: VecEnv, state: torch.Tensor, episode: np.ndarray, step: np.ndarray,
-               active: np.ndarray, action: torch.Tensor, habit: torch.Tensor,
-               zone_radius: float | None = None, integrator: Any = None) -> StepInfo:
+def agent_step(agent: Policy, vec_env: VecEnv, integrator: Integrator, state: torch.Tensor, episode: np.ndarray,
+               step: np.ndarray, active: np.ndarray, action: torch.Tensor, habit: torch.Tensor,
+               zone_radius: float | None = None) -> StepInfo:
     """One step of the ``active`` members with ``action`` ``[E,2]`` (``habit`` ``[E]``: the actor chose it).
 
-    ``zone_radius`` is the radius the agent uses to judge its own estimate
-    under occlusion (default: the task's); ``integrator`` makes ``s_{t+1}`` from the prediction and the
-    observation (default: the paper's pass-through).
+    ``integrator`` makes ``s_{t+1}`` from the prediction and the observation; ``zone_radius`` is the
+    radius the agent uses to judge its own estimate under occlusion (default: the task's).
     """
     device = state.device
     executable = agent.executable(action, state)  # what the plant will do: every network sees this action
@@ -317,7 +316,6 @@ def agent_step(agent: Any, vec_env: VecEnv, state: torch.Tensor, episode: np.nda
     obs = vec_env.step(action.detach().cpu().double().numpy(), active)
     vision = torch.as_tensor(obs.vision, device=device)
     seen = observed_state(obs, device)
-    integrator = integrators.PassThrough(vec_env.E, device) if integrator is None else integrator
     next_state = integrator.update(state, predicted, seen, vision, torch.as_tensor(active, device=device))
     radius = vec_env.spec.zone_radius if zone_radius is None else zone_radius
     est_distance = torch.linalg.vector_norm(next_state[:, :2] - next_state[:, 4:], dim=1)
@@ -325,7 +323,7 @@ def agent_step(agent: Any, vec_env: VecEnv, state: torch.Tensor, episode: np.nda
     terminal = torch.where(vision, torch.as_tensor(obs.reached, device=device), est_distance <= radius)
     delta = agent.td_error(state, executable, reward, next_state, terminal.float())
     return _info(vec_env, obs, episode, step, active, state, action, habit, delta, predicted, reward,
-                 next_state, terminal)
+                 next_state, terminal, radius)
 
 
 def _np(t: torch.Tensor) -> np.ndarray:
@@ -333,12 +331,12 @@ def _np(t: torch.Tensor) -> np.ndarray:
 
 
 def _info(vec_env: VecEnv, obs: Observation, episode, step, active, state, action, habit, delta, predicted,
-          reward, next_state, terminal) -> StepInfo:
+          reward, next_state, terminal, zone_radius: float) -> StepInfo:
     return StepInfo(
         episode=np.asarray(episode, dtype=np.int64).copy(), step=np.asarray(step, dtype=np.int64).copy(),
         active=np.asarray(active, dtype=bool).copy(), state=_np(state), action=_np(action),
         habit=_np(habit).astype(bool), delta=_np(delta), predicted_arm=_np(predicted), reward=_np(reward),
         done=obs.last.copy(), reached=obs.reached.copy(), vision=obs.vision.copy(), next_state=_np(next_state),
-        terminal=_np(terminal).astype(bool), **vec_env.snapshot())
+        terminal=_np(terminal).astype(bool), zone_radius=float(zone_radius), **vec_env.snapshot())
 
 

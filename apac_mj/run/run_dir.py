@@ -29,9 +29,11 @@ from typing import TYPE_CHECKING, Any, Callable, Iterable
 import numpy as np
 import pandas as pd
 
-from apac_mj.config import TrainConfig, task_spec, to_dict, train_config_from_dict
+from apac_mj.config import TrainConfig, migrate, to_dict, train_config_from_dict
 from apac_mj.kinematics import Geometry
+from apac_mj.kinds import check as check_kind
 from apac_mj.run import checkpoint
+from apac_mj.suite import spec_for
 from apac_mj.util.files import atomic_write_parquet, atomic_write_text, read_json
 
 if TYPE_CHECKING:  # torch, the learner and the plant load where a run is built, not where it is read
@@ -78,8 +80,9 @@ def config_dict(cfg: TrainConfig) -> dict[str, Any]:
 
 
 def stored_config(stored: dict[str, Any]) -> dict[str, Any]:
-    """A config as a run stored it (config.json, a checkpoint) in this code's form: without its commit."""
-    return {k: v for k, v in stored.items() if k != "git_commit"}
+    """A config as a run stored it (config.json, a checkpoint) in this code's form: without its commit, and
+    migrated from the shape older releases wrote (:func:`apac_mj.config.migrate`)."""
+    return migrate({k: v for k, v in stored.items() if k != "git_commit"})
 
 
 def diff(old: dict[str, Any], new: dict[str, Any], where: str, prefix: str = "") -> list[str]:
@@ -113,7 +116,8 @@ def validate(cfg: TrainConfig) -> None:
         raise ValueError(f"precision must be 'fp32' or 'bf16', got {cfg.precision!r}")
     if cfg.actuation not in ("servo", "kinematic"):
         raise ValueError(f"actuation must be 'servo' or 'kinematic', got {cfg.actuation!r}")
-    task_spec(cfg)  # unknown task -> KeyError listing the known ones; bad override -> TaskSpecError
+    check_kind(cfg.agent)  # an unknown kind: an error listing the registered ones
+    spec_for(cfg)  # unknown task -> KeyError listing the known ones; bad override -> TaskSpecError
 
 
 def check_device(device: str) -> None:
@@ -137,7 +141,7 @@ def training_env(cfg: TrainConfig) -> VecEnv:
     reset) is shifted by the babbling count here, and only here."""
     from apac_mj.suite.vec_env import VecEnv  # the plant loads when a run is built, not when one is read
 
-    growth = task_spec(cfg).growth_start_episode + cfg.agent.babbling_episodes
+    growth = spec_for(cfg).growth_start_episode + cfg.agent.babbling_episodes
     return VecEnv(cfg.task, list(cfg.seeds), cfg.actuation,
                   overrides={**cfg.task_overrides, "growth_start_episode": growth})
 
@@ -154,7 +158,7 @@ def load_run(run_dir: str | Path, device: str | None = None,
     check_device(device)  # a missing GPU: a clear error before anything is loaded
     ckpt = run.load_checkpoint(required=NETWORK_KEYS)
     agent = Agent(cfg.agent, list(cfg.seeds), device=device, precision=precision or cfg.precision,
-                  geometry=Geometry.from_spec(task_spec(cfg)))
+                  geometry=Geometry.from_spec(spec_for(cfg)))
     agent.load_state_dict(ckpt.agent)
     return cfg, agent, ckpt
 

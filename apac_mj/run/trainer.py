@@ -53,12 +53,13 @@ import torch
 from tqdm.auto import tqdm
 
 from apac_mj.agent.agent import Agent
-from apac_mj.config import TrainConfig, task_spec
+from apac_mj.config import TrainConfig
 from apac_mj.kinds import arbitrator_for
 from apac_mj.kinematics import Geometry
 from apac_mj.run.rollout import EpisodeLoop, EpisodeState, Hook, OnEpisodeStart, OnStep, as_hooks
 from apac_mj.run.checkpoint import CheckpointError
 from apac_mj.run.run_dir import RunCheckpoint, RunDir, diff, say, training_env
+from apac_mj.suite import spec_for
 from apac_mj.types import StepInfo
 
 #: Episodes (all seeds) in the progress bar's running success rate and habit share.
@@ -131,7 +132,7 @@ def train(cfg: TrainConfig, out_dir: str | Path, progress: bool = True, on_step:
     seeds = list(cfg.seeds)
     env = training_env(cfg)
     agent = Agent(cfg.agent, seeds, device=cfg.device, precision=cfg.precision,
-                  geometry=Geometry.from_spec(task_spec(cfg)))
+                  geometry=Geometry.from_spec(spec_for(cfg)))
     babble_gens = babbling_generators(seeds)
     episodes = EpisodeLoop(agent, arbitrator_for(cfg.agent), env, hooks=as_hooks(hooks, on_step, on_episode_start))
     loop, rows, saved_at = LoopState.fresh(len(seeds), cfg.agent.babbling_episodes, agent.device), [], None
@@ -167,7 +168,7 @@ def _progress_bar(cfg: TrainConfig, loop: LoopState, rows: list[dict[str, Any]],
                   progress: bool) -> tuple[tqdm, collections.deque]:
     """The episode bar and its window of the last episodes' (success, habit, planning) of all seeds."""
     bar = tqdm(total=cfg.episodes, initial=min(loop.slowest(), cfg.episodes), disable=not progress,
-               desc=f"{cfg.agent.agent} {cfg.task} x{len(cfg.seeds)}", unit="ep")
+               desc=f"{cfg.agent.kind} {cfg.task} x{len(cfg.seeds)}", unit="ep")
     window = collections.deque(((r["success"], r["habit_actions"], r["planning_actions"])
                                 for r in rows if r["phase"] == "train"), maxlen=PROGRESS_WINDOW * len(cfg.seeds))
     return bar, window

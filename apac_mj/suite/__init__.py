@@ -13,6 +13,8 @@ from typing import Any
 
 from dm_control.rl import control
 
+from apac_mj.config import TrainConfig
+
 from apac_mj.suite import planar_arm
 from apac_mj.suite.task_spec import (TaskSpec, TaskSpecError, load_task, load_task_file, register_task,
                                      task_names, unregister_task)
@@ -24,6 +26,11 @@ ALL_TASKS: tuple[tuple[str, str], ...] = tuple(("planar_arm", name) for name in 
 def load_spec(task_name: str, **overrides: Any) -> TaskSpec:
     spec = load_task(task_name)
     return spec.replace(**overrides) if overrides else spec
+
+
+def spec_for(cfg: TrainConfig) -> TaskSpec:
+    """A run's task: ``tasks/<cfg.task>.toml`` (or a registered task) with ``cfg.task_overrides`` applied."""
+    return load_spec(cfg.task).replace(**cfg.task_overrides)
 
 
 def load(
@@ -43,4 +50,4 @@ def load(
 
 
 __all__ = ["ALL_TASKS", "TaskSpec", "TaskSpecError", "load", "load_spec", "load_task_file", "register_task",
-           "unregister_task"]
+           "spec_for", "unregister_task"]

@@ -6,7 +6,11 @@ fields of the run's configuration (:class:`~apac_mj.config.TrainConfig` and its
 (:class:`~apac_mj.experiments.presets.Preset`).
 
 * ``KEY`` is a field name; ``agent.NAME`` names an AgentConfig field, and a bare
-  AgentConfig field name (``batch_size=64``) means the same.
+  AgentConfig field name (``batch_size=64``) means the same. A field of a table
+  (a dataclass field marked ``metadata={"tables": True}``: a dict of small
+  dataclasses, such as the rules' parameters ``AgentConfig.params``) is reached
+  through the table's name, without the field's: ``agent.uncertainty.window=50``
+  (or ``uncertainty.window=50``).
 * ``VALUE`` is a TOML value (``64``, ``1e-3``, ``true``, ``"text"``, ``[64, 64]``,
   ``{at_limit = "unbounded"}``) or a bare word or comma list (``cpu``,
   ``64,64``), then typed by the field: every value is checked against its
@@ -159,13 +163,41 @@ def field_types(cls: type) -> dict[str, Any]:
     return {f.name: hints[f.name] for f in dataclasses.fields(cls)}
 
 
+def tables(cls: type) -> tuple[str | None, dict[str, type]]:
+    """``cls``'s tables field (None: it has none) and its tables, name -> dataclass (read from a default ``cls()``)."""
+    field = next((f.name for f in dataclasses.fields(cls) if f.metadata.get("tables")), None)
+    return field, ({} if field is None else {k: type(v) for k, v in getattr(cls(), field).items()})
+
+
+def keys(cls: type) -> set[str]:
+    """The names ``--set`` reaches in dataclass ``cls``: its fields, with a tables field's tables instead of it."""
+    field, named = tables(cls)
+    return ({f.name for f in dataclasses.fields(cls)} - {field}) | set(named)
+
+
 def typed_fields(cls: type, values: dict[str, Any], where: str, skip: Iterable[str] = ()) -> dict[str, Any]:
-    """``values`` checked against ``cls``'s fields and typed; unknown names are an error listing the known."""
-    types_ = {k: v for k, v in field_types(cls).items() if k not in set(skip)}
-    unknown = sorted(set(values) - set(types_))
+    """``values`` checked against ``cls``'s fields and typed (a table's fields by its dataclass, gathered into
+    the tables field); unknown names are an error listing the known."""
+    field, named = tables(cls)
+    types_ = {k: v for k, v in field_types(cls).items() if k not in set(skip) and k != field}
+    unknown = sorted(set(values) - set(types_) - set(named) - {field})
     if unknown:
-        raise OverrideError(f"{where}: unknown {cls.__name__} field(s) {unknown}; known: {sorted(types_)}")
-    return {k: coerce(v, types_[k], f"{where}{k}") for k, v in values.items()}
+        raise OverrideError(f"{where.rstrip('.')}: unknown {cls.__name__} field(s) {unknown}; "
+                            f"known: {sorted(types_)}" + (f", tables: {sorted(named)}" if named else ""))
+    out = {k: coerce(v, types_[k], f"{where}{k}") for k, v in values.items() if k in types_}
+    given = {**values.get(field, {}), **{k: v for k, v in values.items() if k in named}} if field else {}
+    if given:
+        out[field] = {k: _table(named, k, v, f"{where}{k}") for k, v in given.items()}
+    return out
+
+
+def _table(named: dict[str, type], name: str, value: Any, where: str) -> dict[str, Any]:
+    if name not in named:
+        raise OverrideError(f"{where}: unknown table; known: {sorted(named)}")
+    if not isinstance(value, dict):
+        raise OverrideError(f"{where} is a table of {named[name].__name__} fields (e.g. {where}.NAME=VALUE), "
+                            f"got {value!r}")
+    return typed_fields(named[name], value, f"{where}.")
 
 
 def set_dotted(data: dict[str, Any], key: str, value: Any) -> None:
@@ -182,11 +214,13 @@ def set_dotted(data: dict[str, Any], key: str, value: Any) -> None:
 def apply_sets(data: dict[str, Any], items: Sequence[str], agent_fields: Iterable[str],
                top_level: Iterable[str]) -> dict[str, Any]:
     """``data`` (a parsed config: top-level keys and an ``agent`` table) with every ``KEY=VALUE`` of
-    ``items`` set; a bare AgentConfig field name that is not a top-level key goes into ``agent``."""
+    ``items`` set; a key whose first name is an AgentConfig one (:func:`keys`) and not a top-level key
+    goes into ``agent``."""
     agent_fields, top_level = set(agent_fields), set(top_level)
     for item in items:
         key, value = parse_set(item)
-        if "." not in key and key not in top_level and key in agent_fields:
+        first = key.split(".")[0]
+        if first not in top_level and first in agent_fields:
             key = f"agent.{key}"
         set_dotted(data, key, value)
     return data
@@ -215,10 +249,15 @@ def field_docs(cls: type) -> dict[str, str]:
 
 
 def field_help(cls: type, prefix: str = "", skip: Iterable[str] = ()) -> str:
-    """One line per field of ``cls``: ``prefix+name = default  doc``; for an argparse epilog."""
+    """One line per field of ``cls``: ``prefix+name = default  doc``, a table's as ``prefix+table.name``;
+    for an argparse epilog."""
     docs, skip = field_docs(cls), set(skip)
+    field, named = tables(cls)
     lines = []
     for f in dataclasses.fields(cls):
+        if f.name == field:
+            lines += [field_help(table, prefix=f"{prefix}{name}.") for name, table in named.items()]
+            continue
         if f.name in skip or dataclasses.is_dataclass(f.type) or f.name.startswith("_"):
             continue
         default = f.default if f.default is not dataclasses.MISSING else (

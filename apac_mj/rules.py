@@ -1,0 +1,162 @@
+"""The parameters of the arbitration rules and integrators beyond the paper: one small table each.
+
+Each table is a frozen dataclass, validated in its own ``__post_init__``, with its fields documented by
+``#:`` comments (they reach ``--help``). Every registered table is part of every
+:class:`~apac_mj.config.AgentConfig` (``cfg.params[name]``, its defaults where nothing is set); the
+command line and preset files reach a field as ``agent.<table>.<field>`` (``--set
+agent.uncertainty.window=50``, ``[agent.kalman]``). A new rule brings its own table and registers it
+(:func:`register`, or ``apac_mj.kinds.AgentKind(params=...)``); nothing else changes.
+
+This module is torch-free and imports nothing from the package: the configuration (below the agent)
+builds every table, the rules (in ``apac_mj.agent``) read theirs.
+"""
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, ClassVar
+
+#: The default agent kind: the paper's APAC (``apac_mj.kinds`` registers it).
+DEFAULT_KIND = "apac"
+
+_TABLES: dict[str, type] = {}
+
+
+def register(cls: type) -> type:
+    """Add the parameter table ``cls`` (a dataclass with a ``table`` name) to every AgentConfig;
+    registering it again is a no-op, another class under a taken name an error."""
+    name = getattr(cls, "table", None)
+    if not dataclasses.is_dataclass(cls) or not isinstance(name, str) or not name.isidentifier():
+        raise ValueError(f"a parameter table must be a dataclass with a class attribute table = '<name>', "
+                         f"got {cls!r}")
+    if _TABLES.get(name, cls) is not cls:
+        raise ValueError(f"parameter table {name!r} is already registered ({_TABLES[name].__qualname__})")
+    _TABLES[name] = cls
+    return cls
+
+
+def tables() -> dict[str, type]:
+    """Every registered table: name -> dataclass."""
+    return dict(_TABLES)
+
+
+def resolve(given: dict[str, Any]) -> dict[str, Any]:
+    """Every registered table, from ``given`` (name -> table instance or a dict of its fields) where it
+    is there, else its defaults; an unknown table or field is a ValueError naming it."""
+    unknown = sorted(set(given) - set(_TABLES))
+    if unknown:
+        raise ValueError(f"unknown parameter table(s) {unknown}; known: {sorted(_TABLES)}")
+    return {name: _table(cls, given.get(name, {})) for name, cls in _TABLES.items()}
+
+
+def _table(cls: type, value: Any) -> Any:
+    if isinstance(value, cls):
+        return value
+    if not isinstance(value, dict):
+        raise ValueError(f"agent.{cls.table} must be a table of {cls.__name__} fields, got {value!r}")
+    known = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(value) - known)
+    if unknown:
+        raise ValueError(f"agent.{cls.table}: unknown field(s) {unknown}; known: {sorted(known)}")
+    return cls(**value)
+
+
+def _require(table: str, ok: bool, what: str, value: Any) -> None:
+    if not ok:
+        raise ValueError(f"agent.{table}.{what}, got {value!r}")
+
+
+@register
+@dataclasses.dataclass(frozen=True)
+class UncertaintyParams:
+    """The uncertainty rule (Daw, Niv & Dayan 2005; ``apac_mj.agent.arbitrators.UncertaintyArbitrator``)."""
+
+    table: ClassVar[str] = "uncertainty"
+    #: Window (transitions) of the running means of delta^2 and of the forward model's squared error
+    #: (exponential, rate 1 / window).
+    window: int = 100
+    #: Weight (in transitions) of the running mean of delta^2 against this episode's own TD errors.
+    prior_weight: float = 4.0
+
+    def __post_init__(self) -> None:
+        _require(self.table, self.window >= 1, "window must be >= 1", self.window)
+        _require(self.table, self.prior_weight >= 0, "prior_weight must be >= 0", self.prior_weight)
+
+
+@register
+@dataclasses.dataclass(frozen=True)
+class ReliabilityParams:
+    """The reliability rule (Lee, Shimojo & O'Doherty 2014; ``ReliabilityArbitrator``)."""
+
+    table: ClassVar[str] = "reliability"
+    #: Window (transitions) of the running reliabilities (exponential, rate 1 / window).
+    window: int = 100
+    #: Weight (in transitions) of the habit's running reliability against this episode's own TD errors.
+    prior_weight: float = 4.0
+    #: The transition rates' amplitude A.
+    rate: float = 0.5
+    #: The transition rates' slope B.
+    slope: float = 6.0
+
+    def __post_init__(self) -> None:
+        _require(self.table, self.window >= 1, "window must be >= 1", self.window)
+        _require(self.table, self.prior_weight >= 0, "prior_weight must be >= 0", self.prior_weight)
+        _require(self.table, self.rate > 0, "rate must be > 0", self.rate)
+        _require(self.table, self.slope > 0, "slope must be > 0", self.slope)
+
+
+@register
+@dataclasses.dataclass(frozen=True)
+class SpeedAccuracyParams:
+    """The speed-accuracy rule (Keramati, Dezfouli & Piray 2011; ``SpeedAccuracyArbitrator``)."""
+
+    table: ClassVar[str] = "speed_accuracy"
+    #: Window (visits of an entry) of the learned time-cost table: a short one, so the planning phase's
+    #: early, long episodes (an immature planner, annealed noise) are soon forgotten.
+    window: int = 20
+
+    def __post_init__(self) -> None:
+        _require(self.table, self.window >= 1, "window must be >= 1", self.window)
+
+
+@register
+@dataclasses.dataclass(frozen=True)
+class VisionAwareParams:
+    """The vision-aware rule (``VisionAwareArbitrator``)."""
+
+    table: ClassVar[str] = "vision_aware"
+    #: The kind whose rule acts while the arm is seen (default: the paper's APAC).
+    base: str = DEFAULT_KIND
+    #: Without vision: "suppress" (the planner acts) or "check" (the habit acts only where the forward
+    #: model predicts its proposal lands in the zone or ``check_ratio`` closer).
+    dark: str = "suppress"
+    #: "check": how much closer (a fraction of the distance now) the predicted landing must be.
+    check_ratio: float = 0.5
+
+    def __post_init__(self) -> None:
+        _require(self.table, self.dark in ("suppress", "check"), "dark must be 'suppress' or 'check'", self.dark)
+        _require(self.table, 0 < self.check_ratio <= 1, "check_ratio must be in (0, 1]", self.check_ratio)
+
+
+@register
+@dataclasses.dataclass(frozen=True)
+class KalmanParams:
+    """The Kalman integrator (``apac_mj.agent.integrator.KalmanIntegrator``)."""
+
+    table: ClassVar[str] = "kalman"
+    #: Window (seen steps) of the running innovation averages that estimate the forward model's error
+    #: variance q.
+    window: int = 200
+    #: q's floor (cm^2).
+    process_floor: float = 1e-4
+    #: q before the first innovation (cm^2).
+    initial_process_var: float = 0.25
+
+    def __post_init__(self) -> None:
+        _require(self.table, self.window >= 1, "window must be >= 1", self.window)
+        _require(self.table, self.process_floor >= 0, "process_floor must be >= 0", self.process_floor)
+        _require(self.table, self.initial_process_var >= 0, "initial_process_var must be >= 0",
+                 self.initial_process_var)
+
+
+#: The integrators by ``AgentConfig.integrator`` name, with the table of their parameters (None: none).
+INTEGRATORS: dict[str, type | None] = {"pass_through": None, "kalman": KalmanParams}

@@ -1,0 +1,63 @@
+"""A run directory written by release 936695d (tests/fixtures/run_936695d: flat rule fields, ``agent.agent``,
+the speed-accuracy rule's flat statistics) still evaluates and resumes with the numbers it had, and its
+config migrates to today's shape with every value kept."""
+from __future__ import annotations
+
+import copy
+import json
+import shutil
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from apac_mj.config import MOVED, migrate, to_dict, train_config_from_dict
+from apac_mj.run.evaluate import evaluate
+from apac_mj.run.trainer import train
+
+FIXTURE = Path(__file__).resolve().parent / "fixtures" / "run_936695d"
+
+
+def _stored() -> dict:
+    d = json.loads((FIXTURE / "config.json").read_text())
+    d.pop("git_commit")
+    return d
+
+
+def test_migrate_keeps_every_value_and_gives_todays_shape():
+    old = _stored()
+    before = copy.deepcopy(old)
+    new = migrate(old)
+    assert old == before, "pure: its argument is left as it was"
+    assert migrate(new) == new, "idempotent"
+    agent = new["agent"]
+    assert agent["kind"] == "apac_speed_accuracy" and "agent" not in agent
+    for key, value in old["agent"].items():
+        if key in MOVED:
+            assert key not in agent and all(agent[t][f] == value for t, f in MOVED[key])
+        elif key != "agent":
+            assert agent[key] == value, key
+    assert agent["uncertainty"]["window"] == agent["reliability"]["window"] == 50
+    assert agent["speed_accuracy"] == {"window": 7} and new["episodes"] == 6
+    # today's shape exactly: what the current release writes for the same configuration
+    assert json.loads(json.dumps(to_dict(train_config_from_dict(old)))) == new
+
+
+@pytest.fixture()
+def run(tmp_path) -> Path:
+    return Path(shutil.copytree(FIXTURE, tmp_path / "run"))
+
+
+def test_an_old_run_evaluates_to_the_same_rows(run):
+    evaluate(run, limit=6)
+    for protocol in ("grid", "occluded"):
+        pd.testing.assert_frame_equal(pd.read_parquet(run / "eval" / f"{protocol}.parquet"),
+                                      pd.read_parquet(FIXTURE / "eval" / f"{protocol}.parquet"), check_exact=True)
+
+
+def test_an_old_run_extends_with_the_numbers_of_its_release(run):
+    cfg = train_config_from_dict({**_stored(), "episodes": 8})
+    train(cfg, run, progress=False)
+    pd.testing.assert_frame_equal(pd.read_parquet(run / "metrics.parquet"),
+                                  pd.read_parquet(FIXTURE / "expected_metrics_8_episodes.parquet"), check_exact=True)
+    assert json.loads((run / "config.json").read_text())["agent"]["kind"] == "apac_speed_accuracy"
