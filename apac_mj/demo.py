@@ -25,13 +25,14 @@ def run_demo(preset: str | Path = "demo", out: str | Path = "results/demo", over
     """Run the preset's grid into ``out`` (resuming), write its report, then record ``record_episodes``
     episodes of the first arbitrating kind's main-study cell (0: none)."""
     from apac_mj.experiments import grid
+    from apac_mj.experiments.presets import load_preset
     from apac_mj.recording.record import record
     from apac_mj.report import write_report
 
     if record_episodes < 0:
         raise ValueError(f"--record-episodes must be >= 0, got {record_episodes}")
     start = time.perf_counter()
-    p = grid.load_preset(preset, overrides)
+    p = load_preset(preset, overrides)
     out = Path(out)
     say(grid.describe(p))
     grid.run_grid(p, out, progress=progress)

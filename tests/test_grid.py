@@ -15,6 +15,8 @@ import pandas as pd
 import pytest
 
 from apac_mj.experiments import grid
+from apac_mj.experiments.presets import CONDITIONS, PresetError, load_preset
+from apac_mj.experiments.results import load_results, load_tests
 from apac_mj import report
 from apac_mj.cli import main
 
@@ -25,13 +27,13 @@ ROOT = Path(__file__).resolve().parent.parent
 
 @pytest.mark.parametrize("name", ["paper", "quick", "smoke", "demo"])
 def test_shipped_presets_load(name: str) -> None:
-    p = grid.load_preset(name)
+    p = load_preset(name)
     assert p.name == name and p.agents and p.conditions and p.seeds
 
 
 def test_paper_preset_is_the_papers_study() -> None:
-    p = grid.load_preset("paper")
-    assert p.agents == ("ddpg", "spac", "apac") and p.conditions == grid.CONDITIONS
+    p = load_preset("paper")
+    assert p.agents == ("ddpg", "spac", "apac") and p.conditions == CONDITIONS
     assert p.seeds == tuple(range(50)) and p.episodes == 1000 and p.agent == {}
     cs = grid.cells(p)
     assert len(cs) == 12 + 12
@@ -41,12 +43,12 @@ def test_paper_preset_is_the_papers_study() -> None:
 
 
 def test_overrides() -> None:
-    p = grid.load_preset("paper", ["seeds=3-5", "episodes=7", "agents=ddpg,apac", "agent.batch_size=64",
+    p = load_preset("paper", ["seeds=3-5", "episodes=7", "agents=ddpg,apac", "agent.batch_size=64",
                                    "tests.occluded=false", "device=cpu"])
     assert p.seeds == (3, 4, 5) and p.episodes == 7 and p.agents == ("ddpg", "apac")
     assert p.agent == {"batch_size": 64} and not p.tests.occluded
-    assert grid.load_preset("smoke", ["seeds=[1, 4]"]).seeds == (1, 4)
-    assert grid.load_preset("smoke", ["seeds=4"]).seeds == (0, 1, 2, 3)
+    assert load_preset("smoke", ["seeds=[1, 4]"]).seeds == (1, 4)
+    assert load_preset("smoke", ["seeds=4"]).seeds == (0, 1, 2, 3)
     cfg = grid.cells(p)[0].train_config(p)
     assert cfg.agent.batch_size == 64 and cfg.seeds == (3, 4, 5) and cfg.episodes == 7
 
@@ -68,8 +70,8 @@ def test_overrides() -> None:
     ("episodes", "must look like key=value"),
 ])
 def test_bad_overrides_name_the_problem(override: str, message: str) -> None:
-    with pytest.raises(grid.PresetError) as e:
-        grid.load_preset("smoke", [override])
+    with pytest.raises(PresetError) as e:
+        load_preset("smoke", [override])
     assert message in str(e.value)
 
 
@@ -79,11 +81,11 @@ def test_unknown_preset_lists_known_ones(tmp_path: Path) -> None:
     known = ", ".join(sorted(p.stem for p in (paths.tasks_dir() / "presets").glob("*.toml")))
     assert {"demo", "fidelity", "paper", "quick", "smoke", "arbitrators"} <= set(known.split(", "))
     with pytest.raises(FileNotFoundError, match=re.escape(f"known presets: {known}")):
-        grid.load_preset("huge")
+        load_preset("huge")
     bad = tmp_path / "bad.toml"
     bad.write_text("agents = [\n")
-    with pytest.raises(grid.PresetError, match="bad.toml"):
-        grid.load_preset(bad)
+    with pytest.raises(PresetError, match="bad.toml"):
+        load_preset(bad)
 
 
 def test_cli_reports_preset_errors(capsys) -> None:
@@ -92,21 +94,21 @@ def test_cli_reports_preset_errors(capsys) -> None:
 
 
 def test_changed_configuration_is_refused(tmp_path: Path) -> None:
-    p = grid.load_preset("smoke")
+    p = load_preset("smoke")
     cell = grid.cells(p)[0]
     grid.prepare_cell(cell, p, tmp_path)
     grid.prepare_cell(cell, p, tmp_path)  # same configuration: fine
-    q = grid.load_preset("smoke", ["agent.batch_size=9"])
+    q = load_preset("smoke", ["agent.batch_size=9"])
     with pytest.raises(ValueError, match=r"different configuration \(train_config.agent.batch_size: 16 there, 9 now\)"):
         grid.prepare_cell(cell, q, tmp_path)
-    assert grid.cell_status(cell, grid.load_preset("smoke", ["episodes=9"]), tmp_path) == \
+    assert grid.cell_status(cell, load_preset("smoke", ["episodes=9"]), tmp_path) == \
         ("to extend", "from 4 to 9 episodes")
     with pytest.raises(ValueError, match="its run has 4 episodes, more than the 3 asked for"):
-        grid.prepare_cell(cell, grid.load_preset("smoke", ["episodes=3"]), tmp_path)
+        grid.prepare_cell(cell, load_preset("smoke", ["episodes=3"]), tmp_path)
 
 
 def test_refused_grid_creates_nothing_and_dry_run_says_so(tmp_path: Path, capsys) -> None:
-    p = grid.load_preset("smoke")
+    p = load_preset("smoke")
     grid.prepare_cell(grid.cells(p)[1], p, tmp_path)  # results of the smoke preset, one cell started
     before = sorted(tmp_path.iterdir())
     args = ["grid", "--preset", "smoke", "--out", str(tmp_path), "--set", "agent.batch_size=9"]
@@ -151,7 +153,7 @@ TINY = ["seeds=2", "episodes=4", "checkpoint_every=1", "conditions=changing_targ
 
 
 def _tables(results: Path) -> tuple[pd.DataFrame, pd.DataFrame]:
-    return grid.load_results(results), grid.load_tests(results)
+    return load_results(results), load_tests(results)
 
 
 def _assert_same_results(a: Path, b: Path) -> None:
@@ -167,7 +169,7 @@ def test_smoke_grid_then_report(tmp_path: Path, stack: None) -> None:
     assert all(c["status"] == "done" for c in manifest["cells"].values())
     assert len(manifest["cells"]) == 3 * 2 + 3
     metrics, tests = _tables(out)
-    p = grid.load_preset("smoke")
+    p = load_preset("smoke")
     train = metrics[metrics["phase"] == "train"]
     assert train.groupby(["agent", "condition", "region", "seed"]).size().eq(p.episodes).all()
     assert set(tests["protocol"]) == {"grid", "occluded", "generalization"}
@@ -225,7 +227,7 @@ def test_demo_writes_report_and_recording(tmp_path: Path, stack: None, capsys) -
 
 @pytest.mark.parametrize("command", [["evaluate"], ["record", "--run"]])
 def test_evaluate_and_record_on_a_grid_directory_list_its_cells(tmp_path: Path, capsys, command) -> None:
-    p = grid.load_preset("smoke")
+    p = load_preset("smoke")
     for c in grid.cells(p)[:2]:
         (grid.prepare_cell(c, p, tmp_path) / "config.json").write_text("{}")
     assert main(command + [str(tmp_path)]) == 2

@@ -163,8 +163,12 @@ def test_the_top_level_is_the_vocabulary_and_the_face():
     assert len(top) <= 8, top
 
 
+VOCABULARY = ("apac_mj.types", "apac_mj.config", "apac_mj.kinds", "apac_mj.rules", "apac_mj.kinematics",
+              "apac_mj.util.files", "apac_mj.util.overrides", "apac_mj.util.paths")
+
+
 @pytest.mark.parametrize("code", ["import apac_mj", "import apac_mj.cli; apac_mj.cli.build_parser()",
-                                  "import apac_mj.types, apac_mj.config, apac_mj.kinds, apac_mj.report"])
+                                  "import apac_mj.report", "import " + ", ".join(VOCABULARY)])
 def test_the_face_and_the_command_line_load_without_torch(code: str):
     out = subprocess.run([sys.executable, "-c", f"{code}; import sys; print('torch' in sys.modules)"],
                          capture_output=True, text=True, check=True, cwd=PACKAGE.parent)

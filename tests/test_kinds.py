@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from apac_mj.experiments import grid
+from apac_mj.experiments.presets import load_preset
 from apac_mj import kinds, report
 from apac_mj.agent.arbitration import HISTORY
 from apac_mj.types import ArbitrationContext, Arbitrator, Decision
@@ -42,7 +43,7 @@ def results(tmp_path_factory):
     """A tiny grid of every registered kind plus the dummy: trained, tested, reported."""
     kinds.register(DUMMY)
     try:
-        preset = grid.load_preset("smoke", [f"agents={','.join(KINDS)}", "conditions=changing_target",
+        preset = load_preset("smoke", [f"agents={','.join(KINDS)}", "conditions=changing_target",
                                             "episodes=3", "tests.generalization=false", "tests.limit=3"])
         out = tmp_path_factory.mktemp("kinds")
         grid.run_grid(preset, out, progress=False)

@@ -8,6 +8,7 @@ import dataclasses
 import pytest
 
 from apac_mj.experiments import grid
+from apac_mj.experiments.presets import PresetError, load_preset
 from apac_mj.util import overrides
 from apac_mj.cli import build_parser, main
 from apac_mj.commands import train as train_cmd
@@ -24,7 +25,7 @@ def _train_args(*sets: str, seeds: str | None = None) -> argparse.Namespace:
 
 @pytest.mark.parametrize("text", ["3", "2-4", "0,3,5", "[1, 4]", "6-6"])
 def test_one_seed_grammar(text):
-    grid_seeds = grid.load_preset("smoke", [f"seeds={text}"]).seeds
+    grid_seeds = load_preset("smoke", [f"seeds={text}"]).seeds
     assert train_cmd.train_config(_train_args(seeds=text)).seeds == grid_seeds
     assert train_cmd.train_config(_train_args(f"seeds={text}")).seeds == grid_seeds
     assert {"3": (0, 1, 2), "6-6": (6,)}.get(text, grid_seeds) == grid_seeds
@@ -34,12 +35,12 @@ def test_one_override_grammar_for_train_and_grid():
     sets = ["actor_hidden=64,64", "agent.batch_size=32", "ou_sigma_initial=none", "normalize_inputs=false",
             "episodes=7", 'task_overrides={at_limit = "unbounded"}']
     cfg = train_cmd.train_config(_train_args(*sets))
-    preset = grid.load_preset("smoke", sets)
+    preset = load_preset("smoke", sets)
     cell = grid.cells(preset)[0].train_config(preset)
     for c in (cfg, cell):
         assert c.agent.actor_hidden == (64, 64) and c.agent.batch_size == 32 and c.agent.ou_sigma_initial is None
         assert c.agent.normalize_inputs is False and c.episodes == 7 and c.task_overrides == {"at_limit": "unbounded"}
-    assert grid.load_preset("smoke", ["agent.actor_hidden=[64, 64]"]).agent["actor_hidden"] == (64, 64)
+    assert load_preset("smoke", ["agent.actor_hidden=[64, 64]"]).agent["actor_hidden"] == (64, 64)
 
 
 @pytest.mark.parametrize("item, message", [
@@ -54,8 +55,8 @@ def test_one_override_grammar_for_train_and_grid():
     ("agent.kalman=3", "agent.kalman is a table of KalmanParams fields"),
 ])
 def test_bad_values_are_refused_by_both_before_anything_runs(tmp_path, capsys, item, message):
-    with pytest.raises(grid.PresetError, match="preset 'smoke'") as e:
-        grid.load_preset("smoke", [item])
+    with pytest.raises(PresetError, match="preset 'smoke'") as e:
+        load_preset("smoke", [item])
     assert message in str(e.value)
     with pytest.raises(overrides.OverrideError) as e:
         train_cmd.train_config(_train_args(item))
@@ -68,22 +69,22 @@ def test_bad_values_are_refused_by_both_before_anything_runs(tmp_path, capsys, i
 
 def test_a_rule_parameter_out_of_range_is_refused_naming_it(tmp_path, capsys):
     message = "agent.speed_accuracy.window must be >= 1, got 0"
-    with pytest.raises(grid.PresetError, match=message):
-        grid.load_preset("smoke", ["agent.speed_accuracy.window=0"])
+    with pytest.raises(PresetError, match=message):
+        load_preset("smoke", ["agent.speed_accuracy.window=0"])
     assert main(["train", "--out", str(tmp_path / "t"), "--set", "speed_accuracy.window=0"]) == 2
     assert message in capsys.readouterr().err and not any(tmp_path.iterdir())
 
 
 def test_a_bad_task_override_is_refused_before_a_grid_writes(tmp_path):
     with pytest.raises(ValueError, match="unknown override"):
-        grid.run_grid(grid.load_preset("smoke", ["task_overrides={no_such = 1}"]), tmp_path / "g", progress=False)
+        grid.run_grid(load_preset("smoke", ["task_overrides={no_such = 1}"]), tmp_path / "g", progress=False)
     assert not (tmp_path / "g").exists()
 
 
 def test_presets_embed_the_run_config():
     run_fields = {f.name for f in dataclasses.fields(TrainConfig)}
     assert not run_fields & ({f.name for f in dataclasses.fields(Preset)} - {"agent"})  # not declared again
-    p = grid.load_preset("smoke")
+    p = load_preset("smoke")
     assert isinstance(p.run, TrainConfig) and p.run.seeds == p.seeds == (0, 1) and p.run.agent.batch_size == 16
 
 
@@ -125,22 +126,22 @@ def test_field_docs_read_the_comments():
 def test_a_rule_parameter_reaches_its_rule_from_the_command_line_and_presets(tmp_path):
     sets = ["agent.uncertainty.window=50", "reliability.slope=3", "agent.kalman.window=100", "integrator=kalman"]
     cfg = train_cmd.train_config(_train_args(*sets, "kind=apac_uncertainty"))
-    preset = grid.load_preset("smoke", sets + ["agents=apac_uncertainty"])
+    preset = load_preset("smoke", sets + ["agents=apac_uncertainty"])
     for c in (cfg, grid.cells(preset)[0].train_config(preset)):
         assert c.agent.kind == "apac_uncertainty"
         assert c.agent.params["uncertainty"] == rules.UncertaintyParams(window=50)
         assert c.agent.params["reliability"].slope == 3.0 and c.agent.params["kalman"].window == 100
         assert kinds.arbitrator_for(c.agent).rate == 1 / 50
     (tmp_path / "p.toml").write_text('agents = ["apac_reliability"]\n[agent.reliability]\nrate = 0.25\n')
-    p = grid.load_preset(tmp_path / "p.toml")
+    p = load_preset(tmp_path / "p.toml")
     assert kinds.arbitrator_for(p.train_config("changing_target", "apac_reliability").agent).A == 0.25
 
 
 def test_a_kind_that_cannot_take_the_config_is_refused_by_the_preset():
-    with pytest.raises(grid.PresetError, match="agent 'ddpg': habit_distillation_weight = 5.0 needs a kind"):
-        grid.load_preset("smoke", ["agent.habit_distillation_weight=5"])
-    with pytest.raises(grid.PresetError, match="unknown agent kind 'nope'"):
-        grid.load_preset("smoke", ["agent.vision_aware.base=nope"])
+    with pytest.raises(PresetError, match="agent 'ddpg': habit_distillation_weight = 5.0 needs a kind"):
+        load_preset("smoke", ["agent.habit_distillation_weight=5"])
+    with pytest.raises(PresetError, match="unknown agent kind 'nope'"):
+        load_preset("smoke", ["agent.vision_aware.base=nope"])
 
 
 def test_agent_overrides_for_scripts_use_the_same_grammar():

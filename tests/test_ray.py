@@ -9,6 +9,8 @@ import pytest
 import torch
 
 from apac_mj.experiments import grid
+from apac_mj.experiments.presets import load_preset
+from apac_mj.experiments.results import load_results, load_tests
 from apac_mj.experiments.executors import LocalExecutor, RayExecutor, make_executor
 
 pytestmark = pytest.mark.ray
@@ -35,7 +37,7 @@ def test_ray_grid_equals_local_grid(tmp_path: Path) -> None:
     ray = pytest.importorskip("ray", reason="the optional Ray extra is not installed (pip install 'apac_mj[ray]')")
     pytest.importorskip("apac_mj.run.trainer", reason="the trainer has not landed yet")
     pytest.importorskip("apac_mj.run.evaluate", reason="the evaluation has not landed yet")
-    preset = grid.load_preset("smoke", TINY)
+    preset = load_preset("smoke", TINY)
     threads = torch.get_num_threads()
     try:
         grid.run_grid(preset, tmp_path / "local", LocalExecutor(), progress=False)
@@ -51,5 +53,5 @@ def test_ray_grid_equals_local_grid(tmp_path: Path) -> None:
                    if "checkpoints" not in p.parts and p.name != "manifest.json")
     assert names == sorted(p.relative_to(tmp_path / "ray").as_posix() for p in (tmp_path / "ray").rglob("*")
                            if "checkpoints" not in p.parts and p.name != "manifest.json")
-    for load in (grid.load_results, grid.load_tests):
+    for load in (load_results, load_tests):
         pd.testing.assert_frame_equal(load(tmp_path / "local"), load(tmp_path / "ray"), check_exact=True)

@@ -17,6 +17,8 @@ from scipy import stats as scipy_stats
 from apac_mj import report
 from apac_mj.cli import main
 from apac_mj.experiments import grid
+from apac_mj.experiments.presets import load_preset
+from apac_mj.experiments.results import load_results, load_tests
 from apac_mj.report import figures, labels, stats
 from apac_mj.report.quantities import judged_reached, key_numbers, per_seed
 from apac_mj.suite.task_spec import TaskSpec, load_task, register_task, unregister_task
@@ -63,7 +65,7 @@ def _eval(rng: np.random.Generator, seeds, n_targets: int, with_path: bool) -> p
 def make_results(root: Path, seed: int = 0, seeds=(0, 1, 2), episodes: int = 30) -> Path:
     """A results directory with every cell of a small grid filled with random contract-shaped data."""
     rng = np.random.default_rng(seed)
-    preset = grid.load_preset("smoke", [f"seeds={list(seeds)}", f"episodes={episodes}",
+    preset = load_preset("smoke", [f"seeds={list(seeds)}", f"episodes={episodes}",
                                         "conditions=static_target,changing_target,changing_target_changing_kinematics",
                                         "tests.generalization_conditions=static_target,changing_target"])
     for cell in grid.cells(preset):
@@ -183,10 +185,10 @@ def test_occluded_and_generalization_match_parquet(made) -> None:
 
 def test_load_results_is_tidy(made) -> None:
     results, _ = made
-    df = grid.load_results(results)
+    df = load_results(results)
     assert not df.duplicated(["agent", "condition", "region", "seed", "episode"]).any()
     assert set(df["region"]) == {"all", "train"}
-    tests = grid.load_tests(results)
+    tests = load_tests(results)
     assert set(tests["protocol"]) == {"grid", "occluded", "generalization"}
     assert set(tests.loc[tests["protocol"] == "occluded", "agent"]) == {"spac", "apac"}
 
@@ -416,7 +418,7 @@ def test_planes_and_region_maps_come_from_the_tasks(made, tmp_path, monkeypatch,
     """Fig. 7 spans each condition's plane; Fig. 8 maps the region of each geometry present (one map where
     the conditions agree, as in the paper)."""
     results, _ = made
-    metrics, tests = grid.load_results(results), grid.load_tests(results)
+    metrics, tests = load_results(results), load_tests(results)
     seed_values = per_seed(metrics, tests)
     data = report.ReportData(results, metrics, tests, seed_values, key_numbers(seed_values))
     drawn = []

@@ -152,7 +152,7 @@ def test_a_run_written_by_an_older_release_reads(tmp_path):
     assert run.exists() and run.finished() and run.evaluated() and run.episodes() == 6
     assert run.metric_rows() == len(run.metrics()) == 2 * (6 + 1)
     cfg, agent, ckpt = rd.load_run(OLD_RUN)
-    assert cfg.agent.agent == "apac_speed_accuracy" and agent.E == 2 == len(cfg.seeds)
+    assert cfg.agent.kind == "apac_speed_accuracy" and agent.E == 2 == len(cfg.seeds)
     assert ckpt.config == run.config() and ckpt.metric_rows == run.metric_rows()
     assert ckpt.member_lengths().shape == (2, 2) and [ckpt.member_episode(k) for k in (0, 1)] == [6, 6]
     assert ckpt.member_targets() == [None, None] and set(ckpt.running_statistics()) == {"arbitrator", "integrator"}

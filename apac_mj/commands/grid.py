@@ -67,8 +67,9 @@ def run(args: argparse.Namespace) -> int:
 
     from apac_mj.experiments import grid
     from apac_mj.experiments.executors import make_executor
+    from apac_mj.experiments.presets import load_preset
 
-    preset = grid.load_preset(args.preset, args.overrides)
+    preset = load_preset(args.preset, args.overrides)
     out = Path(args.out or f"results/{preset.name}")
     print(grid.describe(preset))
     if args.dry_run:

@@ -29,9 +29,8 @@ from apac_mj import kinds
 from apac_mj.config import TrainConfig, migrate, to_dict, train_config_from_dict
 from apac_mj.experiments.executors import LocalExecutor
 from apac_mj.util.files import atomic_write_text, jsonable as _jsonable, read_json
-from apac_mj.experiments.presets import (CONDITIONS, TRAIN_REGION_SUFFIX, Preset, PresetError, Tests,  # noqa: F401
-                             load_preset, parse_override, parse_seeds, preset_from_dict, preset_names, preset_path)
-from apac_mj.experiments.results import CELL_FILE, MANIFEST, cell_dirs, load_results, load_tests  # noqa: F401
+from apac_mj.experiments.presets import TRAIN_REGION_SUFFIX, Preset
+from apac_mj.experiments.results import CELL_FILE, MANIFEST
 from apac_mj.run.run_dir import RunDir, diff, validate
 
 
@@ -201,8 +200,8 @@ def _new_manifest(preset: Preset, grid_cells: list[Cell], dirs: dict[str, Path],
         status = "done" if cell_done(dirs[c.name]) else "pending"
         cells_info[c.name] = {"agent": c.agent, "condition": c.condition, "region": c.region,
                               "protocols": list(c.protocols), "status": status}
-    return {"preset": _jsonable(dataclasses.asdict(preset)), "executor": type(executor).__name__,
-            "cells": cells_info}
+    preset_info = {**dataclasses.asdict(preset), "run": to_dict(preset.run)}  # the run as config.json has it
+    return {"preset": _jsonable(preset_info), "executor": type(executor).__name__, "cells": cells_info}
 
 
 def write_manifest(results: Path, manifest: dict[str, Any]) -> None:
