@@ -16,7 +16,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import rerun as rr
@@ -26,6 +26,13 @@ from apac_mj.kinematics import DEFAULT_ORIGIN, motion_function
 from apac_mj.run.rollout import Hook
 from apac_mj.run.run_dir import git_commit
 from apac_mj.suite.render import Renderer, encode_jpeg
+from apac_mj.types import StepInfo
+
+if TYPE_CHECKING:
+    import dm_env
+    from dm_control.rl import control
+
+    from apac_mj.suite.vec_env import VecEnv
 
 APPLICATION_ID = "apac_mj"
 
@@ -108,7 +115,7 @@ class StepRecord:
     arbitration: dict[str, float] = dataclasses.field(default_factory=dict)
 
     @classmethod
-    def from_step_info(cls, info: Any, member: int) -> "StepRecord":
+    def from_step_info(cls, info: StepInfo, member: int) -> "StepRecord":
         """The record of ``member`` from a member-batched ``apac_mj.types.StepInfo``."""
         def at(name: str) -> Any:
             return np.asarray(getattr(info, name))[member]
@@ -469,7 +476,7 @@ def scalar_series(rows: EntityRows, timeline: str = "frame") -> tuple[np.ndarray
 
 
 # -- recording a plain dm_control environment ------------------------------------------------
-def step_record_from_env(env: Any, episode: int, timestep: Any = None, *, habit: bool = False,
+def step_record_from_env(env: control.Environment, episode: int, timestep: dm_env.TimeStep | None = None, *, habit: bool = False,
                          delta: float = float("nan"), predicted_arm: np.ndarray | None = None) -> StepRecord:
     """A :class:`StepRecord` read from a ``suite`` environment's physics after a reset or a step."""
     physics, task = env.physics, env.task
@@ -486,7 +493,7 @@ def step_record_from_env(env: Any, episode: int, timestep: Any = None, *, habit:
     )
 
 
-def recording_for_env(path: str | Path, env: Any, config: dict[str, Any] | None = None, *,
+def recording_for_env(path: str | Path, env: control.Environment, config: dict[str, Any] | None = None, *,
                       name: str = "rollout", delta_threshold: float = 1.0) -> Recording:
     """A :class:`Recording` with the geometry of a ``suite`` environment's task."""
     spec = env.task.spec
@@ -537,7 +544,7 @@ class EpisodeRecorder(Hook):
         self._recording_episode = False
 
     # -- hooks ----------------------------------------------------------------------------------
-    def on_episode_start(self, members: np.ndarray, vec_env: Any) -> None:
+    def on_episode_start(self, members: np.ndarray, vec_env: VecEnv) -> None:
         """Decide whether the member's new episode is recorded; if so, render its start pose."""
         m = self.member
         if m >= vec_env.E:
@@ -555,7 +562,7 @@ class EpisodeRecorder(Hook):
             distance=physics.distance_to_target(), vision=True)
         self._start = (start, self._render(physics))
 
-    def on_step(self, info: Any, vec_env: Any) -> None:
+    def on_step(self, info: StepInfo, vec_env: VecEnv) -> None:
         """Log the member's step (the episode's file is opened at its first step)."""
         m = self.member
         if not self._recording_episode or not bool(np.asarray(info.active)[m]):
@@ -585,7 +592,7 @@ class EpisodeRecorder(Hook):
             self._renderer = Renderer(physics)
         return self._renderer.render()
 
-    def _open_episode(self, episode: int, vec_env: Any) -> None:
+    def _open_episode(self, episode: int, vec_env: VecEnv) -> None:
         start, frame = self._start  # type: ignore[misc]
         self._start = None
         start.episode = episode
