@@ -138,12 +138,15 @@ def check_device(device: str) -> None:
 def training_env(cfg: TrainConfig) -> VecEnv:
     """The run's environments as training builds them: changing kinematics start after
     ``growth_start_episode`` *training* episodes, so the environment's threshold (which counts every
-    reset) is shifted by the babbling count here, and only here."""
+    reset) is shifted by the babbling count here, and only here; so is the plant's schedule (load change,
+    force field on and off)."""
     from apac_mj.suite.vec_env import VecEnv  # the plant loads when a run is built, not when one is read
 
-    growth = spec_for(cfg).growth_start_episode + cfg.agent.babbling_episodes
-    return VecEnv(cfg.task, list(cfg.seeds), cfg.actuation,
-                  overrides={**cfg.task_overrides, "growth_start_episode": growth})
+    spec, babbling = spec_for(cfg), cfg.agent.babbling_episodes
+    overrides = {**cfg.task_overrides, "growth_start_episode": spec.growth_start_episode + babbling}
+    if spec.plant.dynamic:  # the plant's schedule (load change, field on/off) counts training episodes too
+        overrides["plant"] = spec.plant.shifted(babbling)
+    return VecEnv(cfg.task, list(cfg.seeds), cfg.actuation, overrides=overrides)
 
 
 def load_run(run_dir: str | Path, device: str | None = None,

@@ -177,6 +177,7 @@ def _set_member_state(env, s: dict[str, Any]) -> None:
     p.set_origin(s["origin"].numpy())
     p.set_zone_radius(float(s["zone_radius"]))
     p.set_joint_limits(task.spec.at_limit == "clip", task.spec.joint_range)
+    task.apply_episode_plant(p)
     p.set_link_lengths(*(float(v) for v in s["link_lengths"]))
     p.set_target(s["target"].numpy())
     p.set_state(s["mj_state"].numpy(), sig=_SIG)
