@@ -30,7 +30,7 @@ import numpy as np
 import pandas as pd
 
 from apac_mj.config import TrainConfig, migrate, to_dict, train_config_from_dict
-from apac_mj.kinematics import Geometry
+from apac_mj.kinematics import Geometry, Sizes
 from apac_mj.kinds import check as check_kind
 from apac_mj.run import checkpoint
 from apac_mj.suite import spec_for
@@ -149,6 +149,16 @@ def training_env(cfg: TrainConfig) -> VecEnv:
     return VecEnv(cfg.task, list(cfg.seeds), cfg.actuation, overrides=overrides)
 
 
+def task_sizes(cfg: TrainConfig) -> Sizes:
+    """The agent's sizes (state and action dimensions, action bound) from the dm_env specs of the run's task
+    (one environment is built to read them)."""
+    from apac_mj import suite  # the plant loads when a run is built, not when one is read
+
+    env = suite.load("planar_arm", cfg.task, task_kwargs={"random": 0, "actuation": cfg.actuation,
+                                                          **cfg.task_overrides})
+    return Sizes.from_specs(env.observation_spec(), env.action_spec())
+
+
 def load_run(run_dir: str | Path, device: str | None = None,
              precision: str | None = None) -> tuple[TrainConfig, Agent, RunCheckpoint]:
     """The run's config, its agent (on ``device``, in ``precision``: default the run's) with the newest
@@ -161,7 +171,7 @@ def load_run(run_dir: str | Path, device: str | None = None,
     check_device(device)  # a missing GPU: a clear error before anything is loaded
     ckpt = run.load_checkpoint(required=NETWORK_KEYS)
     agent = Agent(cfg.agent, list(cfg.seeds), device=device, precision=precision or cfg.precision,
-                  geometry=Geometry.from_spec(spec_for(cfg)))
+                  geometry=Geometry.from_spec(spec_for(cfg)), sizes=task_sizes(cfg))
     agent.load_state_dict(ckpt.agent)
     return cfg, agent, ckpt
 
