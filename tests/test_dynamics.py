@@ -65,7 +65,7 @@ def test_tasks_show_prints_every_plant_value_with_its_unit(capsys):
     assert cli.main(["tasks", "--show", CURL]) == 0
     out = capsys.readouterr().out
     for line in ("* plant.actuation = 'compliant'", "plant.stiffness = (15.0, 16.0)  [N·m/rad]",
-                 "* plant.field_b = 40.0  [N·s/m]", "plant.control_interval = 0.1  [s]", "plant.link_masses"):
+                 "* plant.field_b = 100.0  [N·s/m]", "plant.control_interval = 0.1  [s]", "plant.link_masses"):
         assert line in out
 
 
@@ -181,7 +181,7 @@ def test_the_field_switches_on_and_off_at_its_episodes():
         env.step([20.0, 20.0])
         fields[-1] = (fields[-1], bool(np.any(env.physics.data.xfrc_applied != 0)))
         env.reset()
-    assert fields == [(0.0, False), (40.0, True), (40.0, True), (0.0, False)]
+    assert fields == [(0.0, False), (100.0, True), (100.0, True), (0.0, False)]
 
 
 # -- energy and determinism ------------------------------------------------------------------------------------
@@ -322,5 +322,5 @@ def test_the_plant_schedule_counts_training_episodes():
 
     env = training_env(TrainConfig(task=CURL, seeds=(0,), agent=AgentConfig(babbling_episodes=10)))
     plant = env.spec.plant
-    assert (plant.field_on_episode, plant.field_off_episode) == (120, 140) and plant.field_b == 40.0
+    assert (plant.field_on_episode, plant.field_off_episode) == (120, 140) and plant.field_b == 100.0
     assert training_env(TrainConfig(task=LOAD, seeds=(0,))).spec.plant.load_change_episode == 120
