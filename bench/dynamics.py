@@ -6,7 +6,8 @@
 Reads every cell's ``metrics.parquet`` (training episodes) and ``eval/summary.json`` (test on the angle grid)
 that exists, so it also reports a grid that is still running (cells not yet trained are listed as missing).
 Per episode the *error* is the mean distance from hand to target over the episode's steps (cm; minus the
-return over the steps), and the final distance. Writes ``events.csv`` (one row per agent, condition and
+return over the steps), the *relative error* that error over the target's distance from the start pose (so
+near and far targets weigh alike), and the final distance. Writes ``events.csv`` (one row per agent, condition and
 window), ``learning.csv`` (per episode) and ``fig_dynamics.png``; prints the tables as markdown.
 
 Windows (training episodes; the task files' schedule):
@@ -52,6 +53,9 @@ def load_cells(grid: Path) -> tuple[pd.DataFrame, dict[tuple[str, str], dict]]:
             d = d[d.phase == "train"].copy()
             d["agent"], d["condition"] = agent, cond
             d["error"] = -d["return"] / d["steps"]
+            # the start pose (0, 180) puts the hand at origin + (l1 - l2, 0): the initial distance to the target
+            start_x, start_y = 15.0 + d.l1 - d.l2, 15.0
+            d["relative_error"] = d.error / np.hypot(d.target_x - start_x, d.target_y - start_y)
             acts = d.habit_actions + d.planning_actions
             d["habit_share"] = np.where(acts > 0, d.habit_actions / acts.clip(lower=1), np.nan)
             frames.append(d)
@@ -70,6 +74,7 @@ def events(rows: pd.DataFrame) -> pd.DataFrame:
             complete = len(w) == hi - lo + 1
             out.append({"agent": agent, "condition": cond, "window": name, "episodes": f"{lo}-{hi}",
                         "n": len(w), "complete": complete, "error_cm": w.error.mean() if len(w) else np.nan,
+                        "relative_error": w.relative_error.mean() if len(w) else np.nan,
                         "final_distance_cm": w.final_distance.mean() if len(w) else np.nan,
                         "success": w.success.mean() if len(w) else np.nan,
                         "habit_share": w.habit_share.mean() if len(w) else np.nan})
@@ -109,7 +114,7 @@ def figure(rows: pd.DataFrame, tests: dict, path: Path, smooth: int = 5) -> None
             d = rows[(rows.agent == agent) & (rows.condition == cond)].sort_values("episode")
             if d.empty:
                 continue
-            ax_err.plot(d.episode, d.error.rolling(smooth, min_periods=1).mean(), color=COLORS[agent],
+            ax_err.plot(d.episode, d.relative_error.rolling(smooth, min_periods=1).mean(), color=COLORS[agent],
                         label=agent.upper())
             ax_habit.plot(d.episode, d.habit_share.rolling(smooth, min_periods=1).mean(), color=COLORS[agent],
                           label=agent.upper())
@@ -122,7 +127,7 @@ def figure(rows: pd.DataFrame, tests: dict, path: Path, smooth: int = 5) -> None
             ax.set_xlabel("training episode")
         what = "curl field on (shaded)" if off else "1 kg load from the dashed line"
         ax_err.set_title(f"{'curl field' if off else 'gravity + load change'}: error, {what}")
-        ax_err.set_ylabel(f"mean distance over the episode (cm), {smooth}-episode mean")
+        ax_err.set_ylabel(f"relative error (mean distance / start distance), {smooth}-episode mean")
         ax_err.legend()
         ax_habit.set_title("habit share (actor's actions / all)")
         ax_habit.set_ylim(-0.05, 1.05)
@@ -155,7 +160,8 @@ def main() -> None:
                & (rows.condition == c)].empty]
     ev, rec = events(rows), recovery(rows)
     ev.to_csv(args.out / "events.csv", index=False, float_format="%.4g")
-    rows[["agent", "condition", "episode", "success", "steps", "final_distance", "error", "habit_share"]].to_csv(
+    rows[["agent", "condition", "episode", "success", "steps", "final_distance", "error", "relative_error",
+          "habit_share"]].to_csv(
         args.out / "learning.csv", index=False, float_format="%.4g")
     figure(rows, tests, args.out / "fig_dynamics.png")
     print(markdown(ev))
