@@ -101,6 +101,70 @@ def recovery(rows: pd.DataFrame, window: int = 5) -> pd.DataFrame:
     return pd.DataFrame(out)
 
 
+# -- frozen probes: the agent as it was at an episode, on the same 100 targets, field/load on or off ----------
+def _frozen_error(cell: Path, checkpoint: Path, plant_changes: dict) -> dict:
+    """Test the checkpoint's frozen agent on the 100 angle-grid targets with the task's plant changed by
+    ``plant_changes`` (e.g. the field on from the first episode): success, relative error, final distance."""
+    import dataclasses
+
+    import torch
+
+    from apac_mj.agent.agent import Agent
+    from apac_mj.kinematics import Geometry
+    from apac_mj.run.evaluate import evaluation_targets, run_protocol
+    from apac_mj.run.run_dir import RunCheckpoint, RunDir, task_sizes
+    from apac_mj.suite import spec_for
+
+    cfg = RunDir(cell).train_config()
+    plant = dataclasses.replace(spec_for(cfg).plant, **plant_changes)
+    cfg = dataclasses.replace(cfg, task_overrides={**cfg.task_overrides, "plant": plant})
+    spec = spec_for(cfg)
+    ckpt = RunCheckpoint(torch.load(checkpoint, weights_only=True), Path(checkpoint))
+    agent = Agent(cfg.agent, list(cfg.seeds), geometry=Geometry.from_spec(spec), sizes=task_sizes(cfg))
+    agent.load_state_dict(ckpt.agent)
+    lengths = ckpt.member_lengths()
+    targets = evaluation_targets(spec, lengths, ckpt.member_targets())
+    rows = pd.DataFrame(run_protocol(cfg, agent, spec, lengths, targets, occluded=False,
+                                     running=ckpt.running_statistics()))
+    start = np.array([15.0 + lengths[0, 0] - lengths[0, 1], 15.0])
+    start_distance = np.hypot(rows.target_x - start[0], rows.target_y - start[1])
+    path_error = [np.mean(np.hypot(np.asarray(px) - tx, np.asarray(py) - ty))
+                  for px, py, tx, ty in zip(rows.path_x, rows.path_y, rows.target_x, rows.target_y)]
+    habit = rows.habit_actions.sum() / max(1, (rows.habit_actions + rows.planning_actions).sum())
+    return {"episode": ckpt.member_episode(0), "success": rows.success.mean(),
+            "relative_error": float(np.mean(np.asarray(path_error) / start_distance)),
+            "final_distance_cm": rows.final_distance.mean(), "steps": rows.steps.mean(), "habit_share": habit}
+
+
+def probes(grid: Path, history: Path) -> pd.DataFrame:
+    """Every agent frozen before the event (after training episode 110) and after it (curl: after 130, when
+    the field goes off, and at the end, 150; load: at the end, 150), each tested on the 100 grid targets with
+    the field / load off and on. The curl after-effect is the ``off`` error after 130 against after 110."""
+    import torch
+
+    settings = {CURL: {"off": {"field_b": 0.0, "field_on_episode": -1, "field_off_episode": -1},
+                       "on": {"field_on_episode": 0, "field_off_episode": -1}},
+                LOAD: {"off": {"load": 0.0, "load_change_episode": -1, "load_after": 0.0},
+                       "on": {"load": 1.0, "load_change_episode": -1, "load_after": 0.0}}}
+    moments = {CURL: (110, 130, 150), LOAD: (110, 150)}
+    out = []
+    for cond in WINDOWS:
+        for agent in AGENTS:
+            cell = grid / f"{agent}__{cond}"
+            saved = sorted((history / cell.name).glob("*.pt")) + [cell / "checkpoints" / "latest.pt"]
+            at = {}
+            for path in saved:
+                if path.is_file():
+                    at[int(torch.load(path, weights_only=True)["loop"]["episode"][0])] = path
+            for moment in moments[cond]:
+                if moment not in at:
+                    continue
+                for name, changes in settings[cond].items():
+                    r = _frozen_error(cell, at[moment], changes)
+                    out.append({"agent": agent, "condition": cond, "after_episode": moment, "plant": name, **r})
+    return pd.DataFrame(out)
+
+
 def figure(rows: pd.DataFrame, tests: dict, path: Path, smooth: int = 5) -> None:
     import matplotlib
 
@@ -153,6 +217,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("grid", type=Path)
     ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--history", type=Path, default=None,
+                    help="folder of per-cell checkpoint copies (<cell>/*.pt) for the frozen probes")
     args = ap.parse_args()
     rows, tests = load_cells(args.grid)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -174,6 +240,11 @@ def main() -> None:
     last = rows.groupby(["agent", "condition"]).episode.max() if len(rows) else {}
     print("trained up to:", dict(last))
     print("missing cells:", missing)
+    if args.history is not None:
+        pr = probes(args.grid, args.history)
+        pr.to_csv(args.out / "probes.csv", index=False, float_format="%.4g")
+        print()
+        print(markdown(pr) if len(pr) else "no checkpoint at the probe episodes")
 
 
 if __name__ == "__main__":
