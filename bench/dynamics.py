@@ -151,16 +151,22 @@ def probes(grid: Path, history: Path) -> pd.DataFrame:
     for cond in WINDOWS:
         for agent in AGENTS:
             cell = grid / f"{agent}__{cond}"
-            saved = sorted((history / cell.name).glob("*.pt")) + [cell / "checkpoints" / "latest.pt"]
+            saved = sorted((history / cell.name).glob("*.pt"))
+            if (cell / "DONE").is_file():
+                saved.append(cell / "checkpoints" / "latest.pt")
             at = {}
             for path in saved:
-                if path.is_file():
-                    at[int(torch.load(path, weights_only=True)["loop"]["episode"][0])] = path
+                at[int(torch.load(path, weights_only=True)["loop"]["episode"][0])] = path
             for moment in moments[cond]:
                 if moment not in at:
                     continue
                 for name, changes in settings[cond].items():
-                    r = _frozen_error(cell, at[moment], changes)
+                    cache = history / cell.name / f"probe_{moment}_{name}.json"  # a probe costs ~20 s of CPU
+                    if cache.is_file():
+                        r = json.loads(cache.read_text())
+                    else:
+                        r = {k: float(v) for k, v in _frozen_error(cell, at[moment], changes).items()}
+                        cache.write_text(json.dumps(r))
                     out.append({"agent": agent, "condition": cond, "after_episode": moment, "plant": name, **r})
     return pd.DataFrame(out)
 

@@ -439,6 +439,15 @@ PLANT_UNITS = {"stiffness": "N·m/rad", "damping": "N·m·s/rad", "control_inter
                "joint_damping": "N·m·s/rad", "load": "kg", "load_change_episode": "episode (-1: never)",
                "load_after": "kg", "field_b": "N·s/m", "field_on_episode": "episode (-1: never)",
                "field_off_episode": "episode (-1: never)"}
+#: Where each default comes from (``apac-mj tasks --show``; docs/environment.md has the full references).
+PLANT_SOURCES = {
+    "stiffness": "diagonal of K = [[15, 6], [6, 16]], Shadmehr & Mussa-Ivaldi 1994",
+    "damping": "diagonal of V = [[2.3, 0.9], [0.9, 2.4]], Shadmehr & Mussa-Ivaldi 1994",
+    "control_interval": "design: ~100 ms visuomotor loop", "timestep": "design: 50 sub-steps per step",
+    "max_torque": "design: 3x the unloaded arm's gravity torque", "link_masses":
+        "human arm: Shadmehr & Mussa-Ivaldi 1994; Selen, Franklin & Wolpert 2009, Table 1",
+    "gravity": "9.81 m/s^2 along -y", "field_b": "F = B v, B = [[0, b], [-b, 0]], Shadmehr & Mussa-Ivaldi 1994",
+}
 _PLANT_PAIRS = {"stiffness", "damping", "link_masses", "link_inertias", "joint_damping"}
 _PLANT_INTS = {"load_change_episode", "field_on_episode", "field_off_episode"}
 _PLANT_BOOLS = {"gravity", "observe_velocities"}
@@ -525,14 +534,16 @@ def check_plant(plant: PlantSpec) -> None:
 
 
 def describe_plant(plant: PlantSpec) -> str:
-    """Every ``[plant]`` value with its unit, ``*`` marking those that differ from the defaults."""
+    """Every ``[plant]`` value with its unit and the source of its default, ``*`` marking those that differ
+    from the defaults."""
     default = PlantSpec()
     lines = []
     for f in dataclasses.fields(plant):
         v = getattr(plant, f.name)
         unit = PLANT_UNITS.get(f.name, "")
+        source = PLANT_SOURCES.get(f.name, "")
         lines.append(f"{'*' if v != getattr(default, f.name) else ' '} plant.{f.name} = {v!r}"
-                     + (f"  [{unit}]" if unit else ""))
+                     + (f"  [{unit}]" if unit else "") + (f"  ({source})" if source else ""))
     return "\n".join(lines)
 
 
