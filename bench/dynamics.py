@@ -196,12 +196,14 @@ def figure(rows: pd.DataFrame, tests: dict, path: Path, smooth: int = 5) -> None
                 ax.axvspan(on, off, color="tab:purple", alpha=0.12, lw=0)
             ax.set_xlabel("training episode")
         what = "curl field on (shaded)" if off else "1 kg load from the dashed line"
-        ax_err.set_title(f"{'curl field' if off else 'gravity + load change'}: error, {what}")
-        ax_err.set_ylabel(f"relative error (mean distance / start distance), {smooth}-episode mean")
+        ax_err.set_title(f"{'curl field' if off else 'gravity + load change'}: {what}")
+        ax_err.set_ylabel(f"relative error, {smooth}-episode mean")
         ax_err.legend()
         ax_habit.set_title("habit share (actor's actions / all)")
         ax_habit.set_ylim(-0.05, 1.05)
         names = [a for a in AGENTS if (a, cond) in tests]
+        if not names:
+            ax_test.text(0.5, 0.5, "no cell tested yet", ha="center", transform=ax_test.transAxes)
         ax_test.bar([a.upper() for a in names], [tests[(a, cond)]["success_rate"] for a in names],
                     color=[COLORS[a] for a in names])
         ax_test.set_ylim(0, 1)
