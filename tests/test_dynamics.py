@@ -324,3 +324,15 @@ def test_the_plant_schedule_counts_training_episodes():
     plant = env.spec.plant
     assert (plant.field_on_episode, plant.field_off_episode) == (120, 140) and plant.field_b == 100.0
     assert training_env(TrainConfig(task=LOAD, seeds=(0,))).spec.plant.load_change_episode == 120
+
+
+def test_record_an_agent_on_the_torque_arm(tmp_path):
+    """apac-mj record rolls the (untrained) paper agent out on a task with an 8-D state and logs the plant."""
+    from apac_mj import cli
+    from apac_mj.recording import recording as R
+
+    path = tmp_path / "torque.rrd"
+    assert cli.main(["record", "--task", TORQUE, "--episodes", "1", "--out", str(path)]) == 0
+    entities, _, _ = R.read_recording(path)
+    assert f"{R.JOINT_VELOCITY}/shoulder" in entities and R.LOAD in entities
+    assert R.ARM_COMMANDED not in entities  # torques command no angles

@@ -158,7 +158,7 @@ class StepRecord:
             reward=float(at("reward")), distance=float(at("distance")), delta=float(at("delta")),
             habit=bool(at("habit")), predicted_arm=_f64(at("predicted_arm")),
             vision=bool(at("vision")), reached=bool(at("reached")), done=bool(at("done")),
-            estimated_state=_f64(np.asarray(info.next_state)[member]),
+            estimated_state=_f64(np.asarray(info.next_state)[member, :6]),  # the positions (not proprioception)
             arbitration={k: float(np.asarray(v)[member]) for k, v in getattr(info, "arbitration", {}).items()},
         )
 
