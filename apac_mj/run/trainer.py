@@ -265,9 +265,10 @@ def _step(cfg: TrainConfig, loop: LoopState, active: np.ndarray, episodes: Episo
 def _babbling_action(cfg: TrainConfig, action: torch.Tensor, habit: torch.Tensor, babbling: np.ndarray,
                      gens: list[torch.Generator]) -> tuple[torch.Tensor, torch.Tensor]:
     scale = cfg.agent.babbling_scale
+    members = np.flatnonzero(babbling)
+    draws = torch.stack([(torch.rand(2, generator=gens[k]) * 2 - 1) * scale for k in members])  # on the CPU
     action = action.clone()
-    for k in np.flatnonzero(babbling):
-        action[k] = ((torch.rand(2, generator=gens[k]) * 2 - 1) * scale).to(action.device)
+    action[torch.as_tensor(members, device=action.device)] = draws.to(action.device)  # one transfer for all
     return action, habit & ~torch.as_tensor(babbling, device=habit.device)
 
 
