@@ -33,6 +33,7 @@ descheduled process accrues none) and synchronized wall time on CUDA.
 
     python bench/update_paths.py [--cases fp32:1 fp32:10 bf16:10] [--rounds 7] [--updates 2] [--threads 1]
                                  [--device cpu|cuda] [--json results.json] [--no-plain] [--no-rest]
+                                 [--plain-precisions fp32]
 """
 from __future__ import annotations
 
@@ -236,6 +237,8 @@ def main() -> None:
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--device", default="cpu")
     p.add_argument("--no-plain", action="store_true", help="skip the per-member loop (large E)")
+    p.add_argument("--plain-precisions", nargs="+", default=["fp32", "bf16"],
+                   help="the precisions whose cases also time the per-member loop (default both)")
     p.add_argument("--no-rest", action="store_true", help="skip the rest of the step")
     p.add_argument("--json", default=None, help="also write every round's numbers here")
     args = p.parse_args()
@@ -243,7 +246,8 @@ def main() -> None:
     cases = [(c.split(":")[0], int(c.split(":")[1])) for c in args.cases]
     lines = machine_lines(args.device)
     print("\n".join(lines), flush=True)
-    fns = {c: timers(*c, args.device, not args.no_plain, not args.no_rest) for c in cases}
+    fns = {c: timers(*c, args.device, not args.no_plain and c[0] in args.plain_precisions, not args.no_rest)
+           for c in cases}
     for case in fns.values():  # warm-up: the allocator and the kernels settle
         for fn in case.values():
             fn()
