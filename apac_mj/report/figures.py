@@ -274,10 +274,10 @@ def fig_arbitration(data: ReportData, path: Path) -> Path:
             sel = sel_all[(sel_all["agent"] == agent) & (sel_all["condition"] == cond)]
             _line(axes[i, j], sel, "habit_actions", w, "habitual (actor)", "tab:blue")
             _line(axes[i, j], sel, "planning_actions", w, "planning (inverse model)", "tab:red")
-            _mark_crossings(axes[i, j], crossing[(crossing["agent"] == agent) & (crossing["condition"] == cond)])
             title = (condition_label(cond) if len(arbitrating_kinds) == 1
                      else f"{AGENT_LABEL[agent]}, {condition_label(cond)}")
             _style(axes[i, j], title, "training episode", "actions per episode")
+            _mark_crossings(axes[i, j], crossing[(crossing["agent"] == agent) & (crossing["condition"] == cond)])
     if not conds:
         axes[0, 0].text(0.5, 0.5, "no arbitrating agent in these results", ha="center",
                         transform=axes[0, 0].transAxes)
@@ -291,16 +291,15 @@ def fig_arbitration(data: ReportData, path: Path) -> Path:
 
 def _mark_crossings(ax: plt.Axes, crossing: pd.DataFrame) -> None:
     """Each seed's first crossing of the habit threshold (:func:`habit_crossing`) as a tick at the top of the
-    panel, and in words: the median episode and how many seeds crossed."""
+    panel, and in words under the x label: how many seeds crossed, the median episode and the range."""
     eps = crossing["episode"].dropna().to_numpy()
     if len(crossing) == 0:
         return
     ax.plot(eps, np.ones(len(eps)), "|", transform=ax.get_xaxis_transform(), color="black", ms=12, mew=1.2,
-            label=f"seed first >= {HABIT_THRESHOLD:.0%} habitual" if len(eps) else None, clip_on=False)
-    words = (f"{HABIT_THRESHOLD:.0%} habitual: {len(eps)}/{len(crossing)} seeds"
-             + (f", median episode {np.median(eps):.0f} (range {eps.min():.0f}-{eps.max():.0f})" if len(eps) else ""))
-    ax.text(0.02, 0.97, words, transform=ax.transAxes, ha="left", va="top", fontsize=7,
-            bbox=dict(facecolor="white", alpha=0.7, lw=0))
+            clip_on=False)
+    words = (f">= {HABIT_THRESHOLD:.0%} habitual: {len(eps)}/{len(crossing)} seeds"
+             + (f", median ep. {np.median(eps):.0f} ({eps.min():.0f}-{eps.max():.0f})" if len(eps) else ""))
+    ax.set_xlabel(f"{ax.get_xlabel()}\n{words}")
 
 
 def fig_steps_time(data: ReportData, path: Path) -> Path:
