@@ -52,6 +52,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
+from apac_mj.agent import precision as precisions
 from apac_mj.agent.agent import Agent
 from apac_mj.config import AgentConfig, TrainConfig
 from apac_mj.kinds import arbitrator_for
@@ -124,6 +125,7 @@ def train(cfg: TrainConfig, out_dir: str | Path, progress: bool = True, on_step:
     finished are said on stderr, as is a fallback to an older checkpoint.
     """
     run = RunDir(out_dir)
+    cfg = resolved_precision(cfg, run)
     config, run_episodes = run.prepare(cfg)
     if run_episodes == cfg.episodes and run.check_finished():
         say(f"{run.path} already finished {cfg.episodes} episodes; nothing to train "
@@ -156,6 +158,22 @@ def train(cfg: TrainConfig, out_dir: str | Path, progress: bool = True, on_step:
     finally:
         bar.close()
     return run.path
+
+
+def resolved_precision(cfg: TrainConfig, run: RunDir) -> TrainConfig:
+    """``cfg`` with ``precision = "auto"`` resolved (:func:`apac_mj.agent.precision.resolve`), said on stderr:
+    an existing run keeps the precision its config.json records (it continues as it started, on any
+    machine); a new one gets what this machine's hardware supports. Other precisions pass unchanged."""
+    if cfg.precision != "auto":
+        return cfg
+    if run.exists():
+        stored = run.config().get("precision")
+        if stored in ("fp32", "bf16"):
+            say(f"precision {stored}: auto keeps the precision {run.path} was started with (config.json)")
+            return dataclasses.replace(cfg, precision=stored)
+    choice = precisions.resolve("auto", cfg.device)
+    say(f"precision {choice.precision}: {choice.reason}")
+    return dataclasses.replace(cfg, precision=choice.precision)
 
 
 @dataclasses.dataclass
@@ -252,9 +270,11 @@ def _babbling_action(cfg: AgentConfig, action: torch.Tensor, habit: torch.Tensor
                      gens: list[torch.Generator]) -> tuple[torch.Tensor, torch.Tensor]:
     """Uniform actions in ``±cfg.babbling_scale`` (the agent's config: in the task's action units)."""
     scale = cfg.babbling_scale
+    members = np.flatnonzero(babbling)
+    draws = torch.stack([(torch.rand(action.shape[1], generator=gens[k]) * 2 - 1) * scale
+                         for k in members])  # on the CPU
     action = action.clone()
-    for k in np.flatnonzero(babbling):
-        action[k] = ((torch.rand(action.shape[1], generator=gens[k]) * 2 - 1) * scale).to(action.device)
+    action[torch.as_tensor(members, device=action.device)] = draws.to(action.device)  # one transfer for all
     return action, habit & ~torch.as_tensor(babbling, device=habit.device)
 
 
