@@ -336,3 +336,14 @@ def test_record_an_agent_on_the_torque_arm(tmp_path):
     entities, _, _ = R.read_recording(path)
     assert f"{R.JOINT_VELOCITY}/shoulder" in entities and R.LOAD in entities
     assert R.ARM_COMMANDED not in entities  # torques command no angles
+
+
+@pytest.mark.parametrize("task", [GRAVITY, LOAD, CURL, TORQUE])
+def test_kinematics_hold_while_moving_under_load_and_field(task):
+    """MuJoCo's sites equal the motion function at the actual angles after every sub-step, with the task's
+    heaviest load and its field on, on random link lengths, while the arm moves."""
+    from apac_mj.suite.kinematics_check import check_kinematics
+
+    report = check_kinematics(samples=20, seed=2, task=task)
+    assert report.passed and max(report.worst_end_effector, report.worst_elbow) < 1e-12
+    assert report.max_joint_speed > 100.0 and report.task == task
