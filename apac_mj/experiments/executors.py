@@ -4,16 +4,31 @@ Both run the cell runner they are given (``grid.run_grid`` gives ``grid.run_cell
 so the results directory layout and the resume behaviour do not depend on the
 executor. A cluster needs the results directory on a file system every node
 sees (NFS, a mounted bucket); Ray carries only the cell's path and status.
+
+Stopping: Ctrl-C or SIGTERM of the grid's main process cancels the cells not started, interrupts the
+running ones (each says what its checkpoint holds; the next run resumes them) and returns within
+seconds (:data:`STOP_SECONDS`, then the workers are killed). A pool worker also stops when the main
+process dies without a word (kill -9): it asks the kernel for SIGTERM at its parent's death
+(``PR_SET_PDEATHSIG``; elsewhere a thread watches the parent), so no worker writes on after it.
 """
 from __future__ import annotations
 
 import concurrent.futures as cf
+import ctypes
 import multiprocessing
+import os
+import signal
+import sys
+import threading
+import time
 import traceback
 from collections.abc import Callable, Sequence
 from typing import Any
 
 from tqdm.auto import tqdm
+
+#: Seconds the grid waits for interrupted workers to say what they saved and exit before killing them.
+STOP_SECONDS = 10.0
 
 OnResult = Callable[[dict[str, Any]], None]
 #: ``run_cell(cell_dir, progress, threads) -> {"cell", "status", ...}``; a module-level function (pickled
@@ -28,6 +43,69 @@ def _safe_run_cell(run_cell: CellRunner, cell_dir: str, progress: bool, threads:
     except Exception as e:  # noqa: BLE001 - a failed cell is recorded, the others go on
         traceback.print_exc()
         return {"cell": cell_dir.rstrip("/").rsplit("/", 1)[-1], "status": "failed", "error": f"{type(e).__name__}: {e}"}
+
+
+# -- pool workers: stop with the grid ------------------------------------------------------------
+#: A pool worker is running a cell (an interrupt then stops the cell, which says what it saved).
+_IN_CELL = False
+
+
+def _worker_init(parent: int) -> None:
+    """Set up a pool worker: SIGINT and SIGTERM interrupt its cell as Ctrl-C does (an idle worker just exits),
+    and it gets SIGTERM when ``parent`` (the grid's main process) dies."""
+    signal.signal(signal.SIGINT, _on_interrupt)
+    signal.signal(signal.SIGTERM, _on_interrupt)
+    _die_with_parent(parent)
+
+
+def _on_interrupt(signum: int, frame: object) -> None:
+    if _IN_CELL:
+        raise KeyboardInterrupt
+    os._exit(128 + signum)
+
+
+def _die_with_parent(parent: int) -> None:
+    """SIGTERM to this process when ``parent`` dies: the kernel's PR_SET_PDEATHSIG on Linux, else a watcher thread."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        if libc.prctl(1, signal.SIGTERM, 0, 0, 0) != 0:  # PR_SET_PDEATHSIG = 1
+            raise OSError(ctypes.get_errno(), "prctl")
+    except (OSError, AttributeError):
+        def watch() -> None:
+            while os.getppid() == parent:
+                time.sleep(1.0)
+            os.kill(os.getpid(), signal.SIGTERM)
+
+        threading.Thread(target=watch, daemon=True).start()
+    if os.getppid() != parent:  # it died before the request took effect
+        os.kill(os.getpid(), signal.SIGTERM)
+
+
+def _pool_run_cell(run_cell: CellRunner, cell_dir: str, progress: bool, threads: int = 1) -> dict[str, Any]:
+    """:func:`_safe_run_cell` in a pool worker; an interrupted cell ends the worker (the grid is stopping)."""
+    global _IN_CELL
+    _IN_CELL = True
+    try:
+        return _safe_run_cell(run_cell, cell_dir, progress, threads)
+    except KeyboardInterrupt:
+        sys.stderr.flush()
+        os._exit(130)
+    finally:
+        _IN_CELL = False
+
+
+def _stop_pool(pool: cf.ProcessPoolExecutor, workers: list[multiprocessing.Process]) -> None:
+    """Cancel the cells not started, interrupt the running ones (SIGTERM), kill what is left after STOP_SECONDS."""
+    pool.shutdown(wait=False, cancel_futures=True)
+    for p in workers:
+        if p.is_alive():
+            p.terminate()
+    deadline = time.monotonic() + STOP_SECONDS
+    for p in workers:
+        p.join(max(0.0, deadline - time.monotonic()))
+        if p.is_alive():
+            p.kill()
+            p.join(1.0)
 
 
 def _grid_bar(progress: bool, done: int, total: int) -> tqdm:
@@ -52,10 +130,22 @@ class LocalExecutor:
                     _report(bar, on_result, _safe_run_cell(run_cell, d, progress, threads))
                 return
             ctx = multiprocessing.get_context("spawn")
-            with cf.ProcessPoolExecutor(self.workers, mp_context=ctx) as pool:
-                futures = [pool.submit(_safe_run_cell, run_cell, d, progress, threads) for d in cell_dirs]
+            before = set(multiprocessing.active_children())
+            pool = cf.ProcessPoolExecutor(self.workers, mp_context=ctx, initializer=_worker_init,
+                                          initargs=(os.getpid(),))
+            try:
+                futures = [pool.submit(_pool_run_cell, run_cell, d, progress, threads) for d in cell_dirs]
                 for fut in cf.as_completed(futures):
-                    _report(bar, on_result, fut.result())
+                    try:
+                        res = fut.result()
+                    except cf.BrokenExecutor:
+                        raise RuntimeError("a grid worker process died (killed, or out of memory); finished cells "
+                                           "are kept: run the same command again to resume the others") from None
+                    _report(bar, on_result, res)
+            except BaseException:
+                _stop_pool(pool, [p for p in multiprocessing.active_children() if p not in before])
+                raise
+            pool.shutdown(wait=True)
 
 
 class RayExecutor:
@@ -73,6 +163,7 @@ class RayExecutor:
         """One Ray task of ``run_cell`` per directory; ``on_result`` gets each status as it arrives."""
         ray = import_ray()
         started_here = self._init(ray)
+        pending: list[Any] = []
         try:
             remote = ray.remote(num_cpus=threads, max_retries=0)(_safe_run_cell)
             pending = [remote.remote(run_cell, d, False, threads) for d in cell_dirs]
@@ -80,6 +171,10 @@ class RayExecutor:
                 while pending:
                     ready, pending = ray.wait(pending, num_returns=1)
                     _report(bar, on_result, ray.get(ready[0]))
+        except BaseException:
+            for ref in pending:  # stop the running and queued cells (their last checkpoints are kept)
+                ray.cancel(ref, force=True)
+            raise
         finally:
             if started_here:
                 ray.shutdown()
