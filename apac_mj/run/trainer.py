@@ -321,6 +321,7 @@ def _restore(run: RunDir, config: dict[str, Any], episodes: EpisodeLoop,
     restored: dict[str, Any] = {}
 
     def check(ckpt: RunCheckpoint) -> None:
+        run.check_config(ckpt)  # an edited config.json: said as such (the checkpoint records what was trained)
         restored["loop"] = _apply(ckpt, config, episodes, babble_gens)
         restored["rows"] = run.read_metric_rows(ckpt)
 
@@ -333,13 +334,10 @@ def _apply(ckpt: RunCheckpoint, config: dict[str, Any], episodes: EpisodeLoop,
     """Put a loaded checkpoint into the agent, the environments and the generators (same config but
     the episode count, which an extended run changes)."""
     agent, env = episodes.agent, episodes.env
-    changed = diff({**ckpt.config, "episodes": None}, {**config, "episodes": None}, "in the checkpoint",
-                   now="in config.json")
-    if changed:  # config.json agrees with the settings asked for (RunDir.prepare), so it was edited
-        raise RunMismatch(f"{ckpt.path.parent.parent / 'config.json'} disagrees with the run's checkpoint "
-                          f"{ckpt.path} ({'; '.join(changed)}): config.json was edited or replaced, and the "
-                          "checkpoint records what was trained. Put config.json back to the checkpoint's values "
-                          "(nothing was changed; the run is intact), or train into another --out")
+    changed = diff({**ckpt.config, "episodes": None}, {**config, "episodes": None}, "in the checkpoint")
+    if changed:  # the run's files agree with it (RunDir.check_config): the settings asked for differ
+        raise RunMismatch(f"checkpoint {ckpt.path} was trained with other settings than those asked for "
+                          f"({'; '.join(changed)}): run with the run's settings, or use another --out")
     try:
         agent.load_state_dict(_to_device(ckpt.agent, agent.device))
         env.set_state(ckpt.env)
