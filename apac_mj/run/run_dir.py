@@ -423,6 +423,13 @@ class RunDir:
             return  # resuming says which file is damaged
         self.check_config(RunCheckpoint(obj, path))
 
+    def discard_unstarted(self) -> None:
+        """Remove what a new run wrote before it failed without a checkpoint (config.json, partial metrics), so
+        that the corrected command is not refused as "a different config"."""
+        if not self.checkpoint_files():
+            for name in (CONFIG, METRICS, DONE):
+                (self.path / name).unlink(missing_ok=True)
+
     # -- DONE ----------------------------------------------------------------------------------
     def finished(self) -> bool:
         """Training finished: DONE is there."""

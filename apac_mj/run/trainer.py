@@ -160,6 +160,10 @@ def _train(cfg: TrainConfig, run: RunDir, progress: bool, hooks: Sequence[Hook],
         bar.close()
         _say_interrupted(run.path, saved.at, cfg)
         raise
+    except Exception:
+        if run_episodes is None and saved.at is None:  # a new run that failed before its first checkpoint:
+            run.discard_unstarted()                     # no config.json left to refuse the corrected command
+        raise
     finally:
         bar.close()
     return run.path

@@ -9,6 +9,7 @@ while training and testing, which take it again), and it is not inherited by chi
 from __future__ import annotations
 
 import contextlib
+import errno
 import fcntl
 import os
 import sys
@@ -42,7 +43,9 @@ def locked(directory: str | Path, what: str = "run directory") -> Iterator[Path]
     """Hold ``directory``'s lock (created with the directory if needed) for the ``with`` block.
 
     A directory another process holds raises :class:`DirectoryLocked` naming that process's PID at once
-    (no waiting: two writers of one run are a mistake to point out, not to serialize). A directory this
+        (no waiting: two writers of one run are a mistake to point out, not to serialize). In a directory
+    that cannot be written (read-only file system, no permission) the block runs without the lock: there
+    is no writer to keep out, and reads still work (a finished run on a read-only disk). A directory this
     call created is removed again if nothing but the lock file is in it at the end (a refused or failed
     start leaves nothing behind)."""
     directory = Path(directory)
@@ -55,7 +58,15 @@ def locked(directory: str | Path, what: str = "run directory") -> Iterator[Path]
         finally:
             _HELD[key][1] -= 1
         return
-    fd = _acquire(directory, what)
+    try:
+        fd: int | None = _acquire(directory, what)
+    except OSError as e:
+        if e.errno not in (errno.EROFS, errno.EACCES, errno.EPERM) or not directory.is_dir():
+            raise
+        fd = None  # nobody can write here: no second writer to keep out (a write fails with its own message)
+    if fd is None:
+        yield directory
+        return
     _HELD[key] = [fd, 1]
     try:
         yield directory
