@@ -557,3 +557,11 @@ def test_huge_seed_specs_are_refused_before_they_are_expanded(seeds):
         parse_seeds(seeds, "--seeds")
     assert time.perf_counter() - start < 0.5
     assert len(parse_seeds("0-9999")) == 10000
+
+
+def test_a_run_that_fails_at_its_first_reset_leaves_nothing_to_block_the_fix(tmp_path, capsys):
+    """F15's second half: a failed start left a config.json that refused the corrected command."""
+    out = tmp_path / "r"
+    rc = main(["train", "--episodes", "1", "--out", str(out), "--no-progress", *TINY_SETS,
+               "--set", 'task_overrides={target_region="test", region=100.0}'])
+    assert rc == 2 and "no reachable target" in capsys.readouterr().err and not out.exists()

@@ -457,11 +457,14 @@ class RunDir:
 
     # -- metrics.parquet -----------------------------------------------------------------------
     def metric_rows(self) -> int:
-        """Rows in metrics.parquet (0 if none yet), read from the file's footer."""
+        """Rows in metrics.parquet (0 if none yet, -1 if it cannot be read), read from the file's footer."""
         import pyarrow.parquet as pq
 
         path = self.path / METRICS
-        return pq.ParquetFile(path).metadata.num_rows if path.is_file() else 0
+        try:
+            return pq.ParquetFile(path).metadata.num_rows if path.is_file() else 0
+        except Exception:  # noqa: BLE001 - a damaged file (resuming restores it from the checkpoint)
+            return -1
 
     def has_metrics(self) -> bool:
         return (self.path / METRICS).is_file()
