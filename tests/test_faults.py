@@ -565,3 +565,25 @@ def test_a_run_that_fails_at_its_first_reset_leaves_nothing_to_block_the_fix(tmp
     rc = main(["train", "--episodes", "1", "--out", str(out), "--no-progress", *TINY_SETS,
                "--set", 'task_overrides={target_region="test", region=100.0}'])
     assert rc == 2 and "no reachable target" in capsys.readouterr().err and not out.exists()
+
+
+@pytest.mark.slow
+@pytest.mark.ray
+def test_a_killed_ray_driver_leaves_no_ray_process(tmp_path):
+    """F2 (Ray): kill -9 of the driver left ray::DashboardAgent and ray::RuntimeEnvAgent running (they wait 60 s
+    to report the death to the gone GCS); the grid's watchdog stops them."""
+    pytest.importorskip("ray")
+    script = ("import os, signal, sys, time\nfrom apac_mj.experiments.executors import RayExecutor\n"
+              "def cell(d, progress, threads):\n    os.kill(os.getppid() if False else int(d), signal.SIGKILL)\n"
+              "RayExecutor(num_cpus=1).run([str(os.getpid())], cell, print, progress=False)\n")
+    before = set(subprocess.run(["pgrep", "-f", "ray::"], capture_output=True, text=True).stdout.split())
+    proc = subprocess.run([sys.executable, "-c", script], env=ENV, cwd=ROOT, capture_output=True, text=True,
+                          timeout=300)
+    assert proc.returncode == -signal.SIGKILL, proc.stderr[-2000:]
+    deadline = time.monotonic() + 20
+    while time.monotonic() < deadline:
+        left = set(subprocess.run(["pgrep", "-f", "ray::"], capture_output=True, text=True).stdout.split()) - before
+        if not left:
+            break
+        time.sleep(0.5)
+    assert not left, f"Ray processes still running 20 s after the driver's kill -9: {left}"

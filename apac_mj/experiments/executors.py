@@ -163,6 +163,7 @@ class RayExecutor:
         """One Ray task of ``run_cell`` per directory; ``on_result`` gets each status as it arrives."""
         ray = import_ray()
         started_here = self._init(ray)
+        watchdog = _ray_watchdog() if started_here and not self.address else None
         pending: list[Any] = []
         try:
             remote = ray.remote(num_cpus=threads, max_retries=0)(_safe_run_cell)
@@ -178,6 +179,9 @@ class RayExecutor:
         finally:
             if started_here:
                 ray.shutdown()
+            if watchdog is not None:
+                watchdog.kill()
+                watchdog.wait()
 
     def _init(self, ray: Any) -> bool:
         if ray.is_initialized():
@@ -188,6 +192,60 @@ class RayExecutor:
             ray.init(address="local", include_dashboard=False, num_cpus=self.num_cpus,
                      _node_ip_address="127.0.0.1", log_to_driver=True, configure_logging=False)
         return True
+
+
+#: Run by :func:`_ray_watchdog`: every second, note the driver's descendants (PID and start time); once the
+#: driver is gone, SIGKILL those still running (the same PID and start time: not a reused PID).
+_WATCHDOG = r"""
+import os, signal, sys, time
+driver, me = int(sys.argv[1]), os.getpid()
+def stat(pid):
+    try:
+        return open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+def children(pid):
+    out = []
+    for task in os.listdir(f"/proc/{pid}/task") if os.path.isdir(f"/proc/{pid}/task") else []:
+        try:
+            out += [int(c) for c in open(f"/proc/{pid}/task/{task}/children").read().split()]
+        except OSError:
+            pass
+    return out
+known = {}
+while True:
+    s = stat(driver)
+    if s is not None and s[0] != "Z":
+        todo, seen = children(driver), {}
+        while todo:
+            p = todo.pop()
+            if p != me and p not in seen and (ps := stat(p)) is not None:
+                seen[p] = ps[19]
+                todo += children(p)
+        known = seen
+        time.sleep(1.0)
+        continue
+    for p, start in known.items():
+        ps = stat(p)
+        if ps is not None and ps[19] == start:
+            try:
+                os.kill(p, signal.SIGKILL)
+            except OSError:
+                pass
+    break
+"""
+
+
+def _ray_watchdog() -> Any:
+    """A process that stops the local Ray instance's processes if this process (the driver) dies without
+    shutting it down (kill -9): Ray's own agents outlive their driver by a minute or more (they wait 60 s
+    to report the death to the gone GCS). Linux only (/proc); elsewhere None."""
+    import subprocess
+
+    if not os.path.isdir(f"/proc/{os.getpid()}/task"):
+        return None
+    return subprocess.Popen([sys.executable, "-c", _WATCHDOG, str(os.getpid())], start_new_session=True,
+                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
 
 def import_ray() -> Any:
