@@ -57,9 +57,9 @@ def install_signal_handlers() -> object:
 #: What a failed file-system call means and what to do, by errno.
 _OS_ERRORS = {
     errno.ENOSPC: "no space left on the device of {file}; free some space (or use another --out), then run the "
-                  "same command again: it resumes from the last checkpoint, which is intact",
+                  "same command again: what was written is intact, and a run resumes from its last checkpoint",
     errno.EDQUOT: "disk quota exceeded writing {file}; free some space (or use another --out), then run the same "
-                  "command again: it resumes from the last checkpoint, which is intact",
+                  "command again: what was written is intact, and a run resumes from its last checkpoint",
     errno.EROFS: "{file} is on a read-only file system; use an --out on a writable one",
     errno.EACCES: "permission denied for {file}; use another --out, or make it writable for this user",
     errno.EPERM: "operation not permitted on {file}; use another --out, or make it writable for this user",

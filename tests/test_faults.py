@@ -363,7 +363,7 @@ def test_disk_full_at_a_checkpoint_names_the_file_keeps_the_last_and_resumes_exa
     assert main(train_args(out)) == 2
     err = capsys.readouterr().err
     assert f"apac-mj train: error: no space left on the device of {out}/checkpoints/latest.pt" in err, err
-    assert "run the same command again: it resumes from the last checkpoint" in err
+    assert "run the same command again: what was written is intact, and a run resumes from its last checkpoint" in err
     assert not list(out.rglob(".*.tmp")), "the failed write's temporary is removed"
     assert checkpoint.load(out / "checkpoints" / "latest.pt")["loop"]["episode"].min() == 2
     monkeypatch.setattr(files.os, "fsync", real)

@@ -61,6 +61,8 @@ def locked(directory: str | Path, what: str = "run directory") -> Iterator[Path]
     try:
         fd: int | None = _acquire(directory, what)
     except OSError as e:
+        if created:  # e.g. a full disk: leave nothing behind
+            _remove_if_only_lock(directory)
         if e.errno not in (errno.EROFS, errno.EACCES, errno.EPERM) or not directory.is_dir():
             raise
         fd = None  # nobody can write here: no second writer to keep out (a write fails with its own message)
@@ -111,6 +113,20 @@ def _acquire(directory: Path, what: str) -> int:
             break
         os.close(fd)
     command = " ".join(Path(sys.argv[0]).name if i == 0 else a for i, a in enumerate(sys.argv))
-    os.ftruncate(fd, 0)
-    os.pwrite(fd, f"{os.getpid()}\n{command} (since {time.strftime('%Y-%m-%d %H:%M:%S')})\n".encode(), 0)
+    try:
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n{command} (since {time.strftime('%Y-%m-%d %H:%M:%S')})\n".encode(), 0)
+    except OSError as e:
+        os.close(fd)
+        raise OSError(e.errno, e.strerror, str(path)) from None
     return fd
+
+
+def _remove_if_only_lock(directory: Path) -> None:
+    """Remove ``directory`` if nothing but (at most) its lock file is in it."""
+    try:
+        if {p.name for p in directory.iterdir()} <= {LOCK_FILE}:
+            (directory / LOCK_FILE).unlink(missing_ok=True)
+            directory.rmdir()
+    except OSError:
+        pass
