@@ -52,8 +52,10 @@ _IN_CELL = False
 
 def _worker_init(parent: int) -> None:
     """Set up a pool worker: SIGINT and SIGTERM interrupt its cell as Ctrl-C does (an idle worker just exits),
-    and it gets SIGTERM when ``parent`` (the grid's main process) dies."""
-    signal.signal(signal.SIGINT, _on_interrupt)
+    and it gets SIGTERM when ``parent`` (the grid's main process) dies. A SIGINT the grid ignores (a job
+    started in the background by a shell) stays ignored, as it does for the grid itself."""
+    if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:
+        signal.signal(signal.SIGINT, _on_interrupt)
     signal.signal(signal.SIGTERM, _on_interrupt)
     _die_with_parent(parent)
 
