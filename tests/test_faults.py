@@ -435,9 +435,12 @@ def test_invalid_json_names_the_file_and_the_way_out(tmp_path, reference, capsys
     assert main(["evaluate", str(out), "--limit", "1", "--no-progress"]) == 2
     err = capsys.readouterr().err
     assert f"{out}/config.json is not valid JSON" in err and "put back the file" in err, err
+    (out / "config.json").write_text((reference / "config.json").read_text())
     (out / "eval").mkdir(exist_ok=True)
     (out / "eval" / "summary.json").write_text("{")
     assert not RunDir(out).evaluated(), "a damaged summary: the tests run again (the grid re-runs them)"
+    evaluate(out, limit=1, protocols=("grid",))
+    assert RunDir(out).evaluated() and RunDir(out).eval_summary()["protocols"]["grid"]
 
 
 def test_a_damaged_cell_json_is_named_with_the_way_out(tmp_path, capsys):

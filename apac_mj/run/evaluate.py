@@ -83,7 +83,10 @@ def _evaluate(run: RunDir, protocols: Sequence[str], region: str | None, device:
     cfg, agent, ckpt = load_run(run.path, device)
     spec = spec_for(cfg)
     lengths, own = ckpt.member_lengths(), ckpt.member_targets()
-    summary = run.eval_summary()
+    try:
+        summary = run.eval_summary()
+    except ValueError:  # a damaged eval/summary.json: written anew
+        summary = {}
     summary.update(run_dir=str(run.path), agent=cfg.agent.kind, task=cfg.task, seeds=list(cfg.seeds),
                    finished=run.finished())
     for protocol in protocols:
