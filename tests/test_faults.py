@@ -153,8 +153,8 @@ sys.exit(main(sys.argv[2:]))
 """
 
 
-@pytest.mark.parametrize("k", [pytest.param(7, marks=pytest.mark.slow), 9])  # 7: metrics.parquet, 9: latest.pt
-# of episode 2 (each ~10 s on a free 2-core machine: a subprocess start, 4 tiny episodes, a resume)
+@pytest.mark.slow  # 11-12 s each on the shared 2-core machine at load 4.5 (a subprocess start, 4 tiny episodes, a resume)
+@pytest.mark.parametrize("k", [7, 9])  # the file synced before the rename: 7 metrics.parquet, 9 latest.pt, of episode 2
 def test_kill_9_inside_a_write_then_resume_removes_the_temporary_and_equals_uninterrupted(tmp_path, reference, k,
                                                                                         capsys):
     out = tmp_path / "run"
