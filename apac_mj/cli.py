@@ -6,7 +6,9 @@ Each sub-command lives in its own module, which exposes
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
+import signal
 import sys
 
 #: (module, description) for every sub-command module; each registers its own parsers.
@@ -34,21 +36,69 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (what ``kill PID`` and schedulers send): handled as Ctrl-C is, so the same cleanup runs and the
+    same message says what was saved and how to resume."""
+
+
+def on_sigterm(signum: int, frame: object) -> None:
+    raise Terminated()
+
+
+def install_signal_handlers() -> object:
+    """SIGTERM raises :class:`Terminated` (a KeyboardInterrupt) in the main thread; returns the handler it
+    replaced (None: not the main thread, nothing installed)."""
+    try:
+        return signal.signal(signal.SIGTERM, on_sigterm)
+    except ValueError:  # not the main thread (main() called from a thread)
+        return None
+
+
+#: What a failed file-system call means and what to do, by errno.
+_OS_ERRORS = {
+    errno.ENOSPC: "no space left on the device of {file}; free some space (or use another --out), then run the "
+                  "same command again: what was written is intact, and a run resumes from its last checkpoint",
+    errno.EDQUOT: "disk quota exceeded writing {file}; free some space (or use another --out), then run the same "
+                  "command again: what was written is intact, and a run resumes from its last checkpoint",
+    errno.EROFS: "{file} is on a read-only file system; use an --out on a writable one",
+    errno.EACCES: "permission denied for {file}; use another --out, or make it writable for this user",
+    errno.EPERM: "operation not permitted on {file}; use another --out, or make it writable for this user",
+}
+
+
+def os_error_message(e: OSError) -> str:
+    """An OSError as one line naming the file and the way out."""
+    file = e.filename if e.filename is not None else "a file"
+    if e.errno in _OS_ERRORS:
+        return _OS_ERRORS[e.errno].format(file=file) + f" ({e.strerror})"
+    if isinstance(e, FileNotFoundError) and e.filename is None:
+        return str(e)  # this project's own "does not exist" messages
+    return f"{e.strerror or e}: {file}" if e.filename is not None else str(e)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command is None:  # bare `apac-mj`: what it can do
         parser.print_help()
         return 0
+    previous = install_signal_handlers()
     try:
         return int(args.func(args) or 0)
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
-    except (KeyError, ValueError, FileNotFoundError, RuntimeError) as e:
+    except KeyboardInterrupt as e:
+        terminated = isinstance(e, Terminated)
+        print("terminated (SIGTERM)" if terminated else "interrupted", file=sys.stderr)
+        return 128 + (signal.SIGTERM if terminated else signal.SIGINT)
+    except OSError as e:
+        print(f"apac-mj {args.command}: error: {os_error_message(e)}", file=sys.stderr)
+        return 2
+    except (KeyError, ValueError, RuntimeError) as e:
         msg = e.args[0] if isinstance(e, KeyError) and e.args else str(e)
         print(f"apac-mj {args.command}: error: {msg}", file=sys.stderr)
         return 2
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":

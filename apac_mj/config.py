@@ -6,6 +6,7 @@ choice open, the field says so and ``docs/paper-mapping.md`` lists it.
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any
 
 from apac_mj import rules
@@ -144,11 +145,29 @@ class AgentConfig:
                               ("integrator", tuple(rules.INTEGRATORS))):
             if getattr(self, name) not in choices:
                 raise ValueError(f"{name} must be one of {choices}, got {getattr(self, name)!r}")
+        for f in dataclasses.fields(self):  # every number finite: a NaN would change the method silently
+            v = getattr(self, f.name)
+            if isinstance(v, float) and not math.isfinite(v):
+                raise ValueError(f"{f.name} must be a finite number, got {v}")
+        for name, low, high in _RANGES:
+            v = getattr(self, name)
+            if v is not None and (isinstance(v, bool) or not low <= v <= high):
+                raise ValueError(f"{name} must be in [{low:g}, {high:g}], got {v!r}")
         if self.ou_sigma < 0 or (self.ou_sigma_initial is not None and self.ou_sigma_initial < 0):
             raise ValueError("ou_sigma and ou_sigma_initial must be >= 0 degrees")
         if self.batch_size < 1 or self.replay_size < 1:
             raise ValueError("batch_size and replay_size must be >= 1")
         self.params = rules.resolve(self.params)
+
+
+#: (field, low, high) of AgentConfig's numbers beyond finiteness: degrees within a turn, weights and
+#: counts >= 0, sizes that a machine's memory can hold (the replay buffer is checked against it per run).
+_RANGES = (("action_scale", 1e-6, 360.0), ("babbling_scale", 0.0, 360.0), ("ou_sigma", 0.0, 360.0),
+           ("ou_sigma_initial", 0.0, 360.0), ("ou_theta", 0.0, 10.0), ("ou_sigma_anneal_episodes", 0, 10**9),
+           ("weight_decay", 0.0, 1.0), ("feasibility_weight", 0.0, 1e6), ("habit_distillation_weight", 0.0, 1e6),
+           ("plane_scale", 1e-6, 1e4), ("planning_episodes", 0, 10**9), ("habit_first_steps", 0, 10**9),
+           ("babbling_episodes", 0, 10**9), ("updates_per_step", 1, 10**3), ("batch_size", 1, 10**8),
+           ("replay_size", 1, 10**10))
 
 
 @dataclasses.dataclass

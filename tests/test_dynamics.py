@@ -347,3 +347,13 @@ def test_kinematics_hold_while_moving_under_load_and_field(task):
     report = check_kinematics(samples=20, seed=2, task=task)
     assert report.passed and max(report.worst_end_effector, report.worst_elbow) < 1e-12
     assert report.max_joint_speed > 100.0 and report.task == task
+
+
+def test_a_kinematic_run_of_a_task_with_dynamics_is_refused_before_anything_is_written(tmp_path):
+    from apac_mj.config import TrainConfig
+    from apac_mj.run.trainer import train
+
+    with pytest.raises(ValueError, match="use 'servo'"):
+        train(TrainConfig(task=CURL, seeds=(0,), episodes=1, actuation="kinematic"), tmp_path / "run",
+              progress=False)
+    assert not (tmp_path / "run").exists()

@@ -104,10 +104,11 @@ def test_metrics_rows_and_summary(tmp_path):
              "habit_actions": 3, "planning_actions": 1} for s in (0, 1) for e in (0, 1)]
     run.write_metrics(rows)
     assert list(run.metrics().columns) == list(rd.METRIC_COLUMNS) and run.metric_rows() == 4
-    back = run.read_metric_rows(3)
+    back = run.read_metric_rows(rd.RunCheckpoint({"metric_rows": 3}, tmp_path / "old.pt"))
     assert back == rows[:3] and all(type(v) in (int, float, bool, str) for r in back for v in r.values())
-    with pytest.raises(CheckpointError, match="has 4 rows, the checkpoint expects 5"):
-        run.read_metric_rows(5)
+    assert rd.metric_digest(back) == rd.metric_digest(rows[:3]), "the digest of rows read back is the one written"
+    with pytest.raises(rd.RunMismatch, match="has 4 rows, the checkpoint expects 5.*older release.*backup"):
+        run.read_metric_rows(rd.RunCheckpoint({"metric_rows": 5}, tmp_path / "old.pt"))
     assert run.summary(last=1) == {"episodes": 2, "seeds": 2, "success_rate_last_1": 1.0, "habit_share_last_1": 0.75}
 
 
@@ -129,6 +130,7 @@ def test_checkpoints_rotate_and_fall_back(tmp_path, capsys):
 
 def test_a_damaged_final_checkpoint_unfinishes_the_run(tmp_path, capsys):
     run = RunDir(tmp_path)
+    run.write_config({"episodes": 4}, None)
     run.save_checkpoint(fake_checkpoint())
     run.mark_finished()
     assert run.check_finished() and run.finished()

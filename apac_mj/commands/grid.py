@@ -13,7 +13,10 @@ examples:
 Re-running the same command skips finished cells and resumes unfinished ones from their last
 checkpoint; the numbers equal those of an uninterrupted run. A larger episodes (--set episodes=N,
 all else the same) extends finished cells and tests them again; any other change for an existing
---out is refused before anything is written. --dry-run shows what a run would do, refusals included. Presets live in tasks/presets/
+--out is refused before anything is written. --dry-run shows what a run would do, refusals included.
+One grid writes a results directory at a time (a second is refused, naming the first's PID). Ctrl-C
+or SIGTERM stops every worker within seconds, also when the main process is killed; each running cell
+keeps its last checkpoint (docs/reliability.md). Presets live in tasks/presets/
 (copy one and edit it); docs/experiments.md describes the fields and the results layout."""
 
 

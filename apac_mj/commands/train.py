@@ -25,7 +25,10 @@ command resumes from the last checkpoint with the same numbers as an uninterrupt
 on a finished run it does nothing and says so. A larger --episodes (everything else the same)
 extends a finished run, again with the numbers of an uninterrupted run of that length; any other
 difference for an existing directory is an error. A damaged checkpoints/latest.pt falls back, with a
-warning, to checkpoints/previous.pt. Everything is checked before the directory is created."""
+warning, to checkpoints/previous.pt. Everything is checked before the directory is created.
+One process writes a run directory at a time (RUN_DIR/.lock; a second is refused, naming the first's
+PID). Ctrl-C and SIGTERM say what the last checkpoint holds; the same command resumes from it. A
+config.json or metrics.parquet that disagrees with the checkpoint is named (docs/reliability.md)."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -4,16 +4,31 @@ Both run the cell runner they are given (``grid.run_grid`` gives ``grid.run_cell
 so the results directory layout and the resume behaviour do not depend on the
 executor. A cluster needs the results directory on a file system every node
 sees (NFS, a mounted bucket); Ray carries only the cell's path and status.
+
+Stopping: Ctrl-C or SIGTERM of the grid's main process cancels the cells not started, interrupts the
+running ones (each says what its checkpoint holds; the next run resumes them) and returns within
+seconds (:data:`STOP_SECONDS`, then the workers are killed). A pool worker also stops when the main
+process dies without a word (kill -9): it asks the kernel for SIGTERM at its parent's death
+(``PR_SET_PDEATHSIG``; elsewhere a thread watches the parent), so no worker writes on after it.
 """
 from __future__ import annotations
 
 import concurrent.futures as cf
+import ctypes
 import multiprocessing
+import os
+import signal
+import sys
+import threading
+import time
 import traceback
 from collections.abc import Callable, Sequence
 from typing import Any
 
 from tqdm.auto import tqdm
+
+#: Seconds the grid waits for interrupted workers to say what they saved and exit before killing them.
+STOP_SECONDS = 10.0
 
 OnResult = Callable[[dict[str, Any]], None]
 #: ``run_cell(cell_dir, progress, threads) -> {"cell", "status", ...}``; a module-level function (pickled
@@ -28,6 +43,71 @@ def _safe_run_cell(run_cell: CellRunner, cell_dir: str, progress: bool, threads:
     except Exception as e:  # noqa: BLE001 - a failed cell is recorded, the others go on
         traceback.print_exc()
         return {"cell": cell_dir.rstrip("/").rsplit("/", 1)[-1], "status": "failed", "error": f"{type(e).__name__}: {e}"}
+
+
+# -- pool workers: stop with the grid ------------------------------------------------------------
+#: A pool worker is running a cell (an interrupt then stops the cell, which says what it saved).
+_IN_CELL = False
+
+
+def _worker_init(parent: int) -> None:
+    """Set up a pool worker: SIGINT and SIGTERM interrupt its cell as Ctrl-C does (an idle worker just exits),
+    and it gets SIGTERM when ``parent`` (the grid's main process) dies. A SIGINT the grid ignores (a job
+    started in the background by a shell) stays ignored, as it does for the grid itself."""
+    if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:
+        signal.signal(signal.SIGINT, _on_interrupt)
+    signal.signal(signal.SIGTERM, _on_interrupt)
+    _die_with_parent(parent)
+
+
+def _on_interrupt(signum: int, frame: object) -> None:
+    if _IN_CELL:
+        raise KeyboardInterrupt
+    os._exit(128 + signum)
+
+
+def _die_with_parent(parent: int) -> None:
+    """SIGTERM to this process when ``parent`` dies: the kernel's PR_SET_PDEATHSIG on Linux, else a watcher thread."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        if libc.prctl(1, signal.SIGTERM, 0, 0, 0) != 0:  # PR_SET_PDEATHSIG = 1
+            raise OSError(ctypes.get_errno(), "prctl")
+    except (OSError, AttributeError):
+        def watch() -> None:
+            while os.getppid() == parent:
+                time.sleep(1.0)
+            os.kill(os.getpid(), signal.SIGTERM)
+
+        threading.Thread(target=watch, daemon=True).start()
+    if os.getppid() != parent:  # it died before the request took effect
+        os.kill(os.getpid(), signal.SIGTERM)
+
+
+def _pool_run_cell(run_cell: CellRunner, cell_dir: str, progress: bool, threads: int = 1) -> dict[str, Any]:
+    """:func:`_safe_run_cell` in a pool worker; an interrupted cell ends the worker (the grid is stopping)."""
+    global _IN_CELL
+    _IN_CELL = True
+    try:
+        return _safe_run_cell(run_cell, cell_dir, progress, threads)
+    except KeyboardInterrupt:
+        sys.stderr.flush()
+        os._exit(130)
+    finally:
+        _IN_CELL = False
+
+
+def _stop_pool(pool: cf.ProcessPoolExecutor, workers: list[multiprocessing.Process]) -> None:
+    """Cancel the cells not started, interrupt the running ones (SIGTERM), kill what is left after STOP_SECONDS."""
+    pool.shutdown(wait=False, cancel_futures=True)
+    for p in workers:
+        if p.is_alive():
+            p.terminate()
+    deadline = time.monotonic() + STOP_SECONDS
+    for p in workers:
+        p.join(max(0.0, deadline - time.monotonic()))
+        if p.is_alive():
+            p.kill()
+            p.join(1.0)
 
 
 def _grid_bar(progress: bool, done: int, total: int) -> tqdm:
@@ -52,10 +132,22 @@ class LocalExecutor:
                     _report(bar, on_result, _safe_run_cell(run_cell, d, progress, threads))
                 return
             ctx = multiprocessing.get_context("spawn")
-            with cf.ProcessPoolExecutor(self.workers, mp_context=ctx) as pool:
-                futures = [pool.submit(_safe_run_cell, run_cell, d, progress, threads) for d in cell_dirs]
+            before = set(multiprocessing.active_children())
+            pool = cf.ProcessPoolExecutor(self.workers, mp_context=ctx, initializer=_worker_init,
+                                          initargs=(os.getpid(),))
+            try:
+                futures = [pool.submit(_pool_run_cell, run_cell, d, progress, threads) for d in cell_dirs]
                 for fut in cf.as_completed(futures):
-                    _report(bar, on_result, fut.result())
+                    try:
+                        res = fut.result()
+                    except cf.BrokenExecutor:
+                        raise RuntimeError("a grid worker process died (killed, or out of memory); finished cells "
+                                           "are kept: run the same command again to resume the others") from None
+                    _report(bar, on_result, res)
+            except BaseException:
+                _stop_pool(pool, [p for p in multiprocessing.active_children() if p not in before])
+                raise
+            pool.shutdown(wait=True)
 
 
 class RayExecutor:
@@ -73,6 +165,8 @@ class RayExecutor:
         """One Ray task of ``run_cell`` per directory; ``on_result`` gets each status as it arrives."""
         ray = import_ray()
         started_here = self._init(ray)
+        watchdog = _ray_watchdog() if started_here and not self.address else None
+        pending: list[Any] = []
         try:
             remote = ray.remote(num_cpus=threads, max_retries=0)(_safe_run_cell)
             pending = [remote.remote(run_cell, d, False, threads) for d in cell_dirs]
@@ -80,9 +174,16 @@ class RayExecutor:
                 while pending:
                     ready, pending = ray.wait(pending, num_returns=1)
                     _report(bar, on_result, ray.get(ready[0]))
+        except BaseException:
+            for ref in pending:  # stop the running and queued cells (their last checkpoints are kept)
+                ray.cancel(ref, force=True)
+            raise
         finally:
             if started_here:
                 ray.shutdown()
+            if watchdog is not None:
+                watchdog.kill()
+                watchdog.wait()
 
     def _init(self, ray: Any) -> bool:
         if ray.is_initialized():
@@ -93,6 +194,60 @@ class RayExecutor:
             ray.init(address="local", include_dashboard=False, num_cpus=self.num_cpus,
                      _node_ip_address="127.0.0.1", log_to_driver=True, configure_logging=False)
         return True
+
+
+#: Run by :func:`_ray_watchdog`: every second, note the driver's descendants (PID and start time); once the
+#: driver is gone, SIGKILL those still running (the same PID and start time: not a reused PID).
+_WATCHDOG = r"""
+import os, signal, sys, time
+driver, me = int(sys.argv[1]), os.getpid()
+def stat(pid):
+    try:
+        return open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+def children(pid):
+    out = []
+    for task in os.listdir(f"/proc/{pid}/task") if os.path.isdir(f"/proc/{pid}/task") else []:
+        try:
+            out += [int(c) for c in open(f"/proc/{pid}/task/{task}/children").read().split()]
+        except OSError:
+            pass
+    return out
+known = {}
+while True:
+    s = stat(driver)
+    if s is not None and s[0] != "Z":
+        todo, seen = children(driver), {}
+        while todo:
+            p = todo.pop()
+            if p != me and p not in seen and (ps := stat(p)) is not None:
+                seen[p] = ps[19]
+                todo += children(p)
+        known = seen
+        time.sleep(1.0)
+        continue
+    for p, start in known.items():
+        ps = stat(p)
+        if ps is not None and ps[19] == start:
+            try:
+                os.kill(p, signal.SIGKILL)
+            except OSError:
+                pass
+    break
+"""
+
+
+def _ray_watchdog() -> Any:
+    """A process that stops the local Ray instance's processes if this process (the driver) dies without
+    shutting it down (kill -9): Ray's own agents outlive their driver by a minute or more (they wait 60 s
+    to report the death to the gone GCS). Linux only (/proc); elsewhere None."""
+    import subprocess
+
+    if not os.path.isdir(f"/proc/{os.getpid()}/task"):
+        return None
+    return subprocess.Popen([sys.executable, "-c", _WATCHDOG, str(os.getpid())], start_new_session=True,
+                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
 
 def import_ray() -> Any:

@@ -16,6 +16,10 @@ Layout::
 A finished cell (``DONE`` and ``eval/summary.json``) is skipped; an unfinished
 one resumes from its last checkpoint, so re-running the same command after a
 kill continues where it stopped and gives the numbers of an uninterrupted run.
+
+One grid writes a results directory (its lock, :mod:`apac_mj.util.lock`; a second grid on it is refused,
+naming the first's PID), and each cell is written by the one process that holds the cell's own lock
+(a run directory's: :meth:`apac_mj.run.run_dir.RunDir.lock`).
 """
 from __future__ import annotations
 
@@ -28,10 +32,19 @@ from typing import Any
 from apac_mj import kinds
 from apac_mj.config import TrainConfig, migrate, to_dict, train_config_from_dict
 from apac_mj.experiments.executors import LocalExecutor
-from apac_mj.util.files import atomic_write_text, jsonable as _jsonable, read_json
+from apac_mj.util.files import atomic_write_text, jsonable as _jsonable, read_json, remove_stale_temporaries
 from apac_mj.experiments.presets import TRAIN_REGION_SUFFIX, Preset
 from apac_mj.experiments.results import CELL_FILE, MANIFEST
-from apac_mj.run.run_dir import RunDir, diff, validate
+from apac_mj.run.run_dir import RunDir, diff, say, validate
+from apac_mj.util.lock import locked
+
+#: The way out for a damaged cell.json.
+_CELL_FIX = ("delete that one file: the grid writes it again from the preset, and the cell's run is checked against "
+             "it before anything is trained")
+
+
+def _cell_file(cell_dir: Path) -> dict[str, Any] | None:
+    return read_json(cell_dir / CELL_FILE, fix=_CELL_FIX)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -76,7 +89,7 @@ def cells(preset: Preset) -> list[Cell]:
 
 def cell_done(cell_dir: Path) -> bool:
     """Finished: training DONE for the cell's episode count and, if it has tests, the evaluation summary written."""
-    info, run = read_json(cell_dir / CELL_FILE), RunDir(cell_dir)
+    info, run = _cell_file(cell_dir), RunDir(cell_dir)
     if info is None or not run.finished():
         return False
     if run.episodes() != info["train_config"]["episodes"]:
@@ -94,7 +107,7 @@ def cell_status(cell: Cell, preset: Preset, results: Path) -> tuple[str, str]:
     """What running ``cell`` into ``results`` would do, writing nothing: ("done" | "to run" | "to resume" |
     "to extend" | "refused", why). A cell that differs only by more episodes is extended."""
     cell_dir = Path(results) / cell.name
-    info, old = _cell_info(cell, preset), read_json(cell_dir / CELL_FILE)
+    info, old = _cell_info(cell, preset), _cell_file(cell_dir)
     if old is None:
         return "to run", ""
     old = {**old, "train_config": migrate(old["train_config"])}
@@ -123,9 +136,9 @@ def prepare_cell(cell: Cell, preset: Preset, results: Path) -> Path:
     status, why = cell_status(cell, preset, results)
     if status == "refused":
         raise ValueError(why)
-    cell_dir.mkdir(parents=True, exist_ok=True)
-    if status in ("to run", "to extend") and read_json(cell_dir / CELL_FILE) != _cell_info(cell, preset):
-        atomic_write_text(cell_dir / CELL_FILE, json.dumps(_cell_info(cell, preset), indent=2))
+    with RunDir(cell_dir).lock():  # no other process writes the cell; a killed writer's temporaries removed
+        if status in ("to run", "to extend") and _cell_file(cell_dir) != _cell_info(cell, preset):
+            atomic_write_text(cell_dir / CELL_FILE, json.dumps(_cell_info(cell, preset), indent=2))
     return cell_dir
 
 
@@ -146,16 +159,17 @@ def run_cell(cell_dir: str | Path, progress: bool = True, threads: int = 1) -> d
 
     torch.set_num_threads(threads)
     cell_dir = Path(cell_dir)
-    info = read_json(cell_dir / CELL_FILE)
-    if info is None:
-        raise FileNotFoundError(f"{cell_dir / CELL_FILE} missing: prepare the cell first")
     start = time.perf_counter()
-    if not cell_done(cell_dir):
-        from apac_mj.run.trainer import train
+    with RunDir(cell_dir).lock():  # this process is the cell's one writer while it trains and tests it
+        info = _cell_file(cell_dir)
+        if info is None:
+            raise FileNotFoundError(f"{cell_dir / CELL_FILE} missing: prepare the cell first")
+        if not cell_done(cell_dir):
+            from apac_mj.run.trainer import train
 
-        train(train_config_from_dict(info["train_config"]), cell_dir, progress=progress)
-        if info["protocols"]:
-            _evaluate(cell_dir, tuple(info["protocols"]), info["test_limit"])
+            train(train_config_from_dict(info["train_config"]), cell_dir, progress=progress)
+            if info["protocols"]:
+                _evaluate(cell_dir, tuple(info["protocols"]), info["test_limit"])
     return {"cell": cell_dir.name, "status": "done", "wall_s": round(time.perf_counter() - start, 3)}
 
 
@@ -171,7 +185,13 @@ def run_grid(preset: Preset, results: str | Path, executor: Any = None, progress
     """Run every unfinished cell with ``executor`` (default: LocalExecutor) and keep the manifest current."""
     results = Path(results)
     check_grid(preset, results)  # before anything is created
-    results.mkdir(parents=True, exist_ok=True)
+    with locked(results, "grid's results directory"):  # one grid per results directory
+        remove_stale_temporaries(results, recursive=False)  # the cells' own: by their writers, under their locks
+        return _run_grid(preset, results, executor, progress)
+
+
+def _run_grid(preset: Preset, results: Path, executor: Any, progress: bool) -> dict[str, Any]:
+    """:func:`run_grid` as the results directory's one grid."""
     executor = executor or LocalExecutor()
     grid_cells = cells(preset)
     dirs = {c.name: prepare_cell(c, preset, results) for c in grid_cells}
@@ -184,8 +204,14 @@ def run_grid(preset: Preset, results: str | Path, executor: Any = None, progress
         write_manifest(results, manifest)
 
     start = time.perf_counter()
-    executor.run([str(dirs[n]) for n in todo], run_cell, on_result, progress=progress, done=len(dirs) - len(todo),
-                 total=len(dirs), threads=preset.threads)
+    try:
+        executor.run([str(dirs[n]) for n in todo], run_cell, on_result, progress=progress,
+                     done=len(dirs) - len(todo), total=len(dirs), threads=preset.threads)
+    except KeyboardInterrupt:
+        finished = sum(c["status"] == "done" for c in manifest["cells"].values())
+        say(f"interrupted: {finished} of {len(dirs)} cells of {results} are finished; each unfinished cell keeps its "
+            "last checkpoint (said above): run the same command again to resume")
+        raise
     manifest["wall_s_this_run"] = round(time.perf_counter() - start, 3)
     write_manifest(results, manifest)
     failed = {n: c["error"] for n, c in manifest["cells"].items() if c["status"] == "failed"}

@@ -14,6 +14,9 @@ several episodes play one after another.
 from __future__ import annotations
 
 import dataclasses
+import os
+import sys
+import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -27,6 +30,7 @@ from apac_mj.run.rollout import Hook
 from apac_mj.run.run_dir import git_commit
 from apac_mj.suite.render import Renderer, encode_jpeg
 from apac_mj.types import StepInfo
+from apac_mj.util.files import current_umask, remove_stale_temporaries, temporary_name
 
 if TYPE_CHECKING:
     import dm_env
@@ -90,6 +94,9 @@ BATCH_SECONDS, BATCH_BYTES = 60.0, 8 * 1024 * 1024
 HABIT, PLANNING = 1.0, 0.0
 #: Pixels per cm of the distance-field image.
 FIELD_PX_PER_CM = 5
+#: The distance field's longest side at most (pixels): a larger plane gets fewer pixels per cm
+#: (:func:`field_px_per_cm`), so its image stays a few MB whatever the plane's size.
+FIELD_MAX_PX = 1024
 #: Spacing of the contour bands in the distance field (cm).
 CONTOUR_CM = 2.0
 
@@ -222,21 +229,27 @@ def default_blueprint(plane_size: Sequence[float] = (30.0, 30.0)) -> rrb.Bluepri
     )
 
 
+def field_px_per_cm(plane_size: Sequence[float]) -> float:
+    """The distance field's resolution: FIELD_PX_PER_CM, less for a plane wider than FIELD_MAX_PX at that."""
+    return min(float(FIELD_PX_PER_CM), FIELD_MAX_PX / max(float(v) for v in plane_size))
+
+
 def distance_field(target: Sequence[float], plane_size: Sequence[float]) -> np.ndarray:
     """The paper's contour plot as an RGB image: distance to the target with contour bands.
 
-    Row ``r`` covers ``y = r / FIELD_PX_PER_CM`` (row 0 is y = 0): the plane
+    Row ``r`` covers ``y = r / px`` with ``px = field_px_per_cm(plane_size)`` (row 0 is y = 0): the plane
     entity's transform flips it so that +y points up.
     """
     import matplotlib
 
     w, h = plane_size
-    xs = (np.arange(int(w * FIELD_PX_PER_CM)) + 0.5) / FIELD_PX_PER_CM
-    ys = (np.arange(int(h * FIELD_PX_PER_CM)) + 0.5) / FIELD_PX_PER_CM
+    px = field_px_per_cm(plane_size)
+    xs = (np.arange(max(1, int(w * px))) + 0.5) / px
+    ys = (np.arange(max(1, int(h * px))) + 0.5) / px
     d = np.hypot(xs[None, :] - target[0], ys[:, None] - target[1])
     rgb = matplotlib.colormaps["viridis"](d / np.hypot(w, h))[..., :3]
     rgb = 0.45 * rgb + 0.55  # pastel, so that the arms drawn on top stand out
-    band = (d % CONTOUR_CM) < (1.2 / FIELD_PX_PER_CM)
+    band = (d % CONTOUR_CM) < (1.2 / px)
     rgb[band] *= 0.75
     return (rgb * 255).astype(np.uint8)
 
@@ -261,6 +274,13 @@ def _dashed(strip: np.ndarray, dash: float = 0.6) -> np.ndarray:
 class Recording:
     """One .rrd file being written: episodes, steps, events, properties, blueprint.
 
+    The file is written under a temporary name beside ``path`` and renamed to ``path`` when it is closed
+    complete: an existing file at ``path`` stays as it was until then. Closed after an error or an
+    interrupt (``close(complete=False)``, or leaving the ``with`` block by an exception) it becomes
+    ``NAME.partial.rrd`` instead, with the ``status`` property ``complete = false``
+    (:func:`recording_complete`). The temporary of a killed writer is removed by the next recording of
+    the same path.
+
     Args:
       path: the .rrd file to write (its folder is created).
       config: the run's configuration, saved as the ``config`` recording property.
@@ -275,6 +295,13 @@ class Recording:
         if self.path.suffix != ".rrd":
             raise ValueError(f"recording file must end in .rrd, got {str(path)!r}")
         self.path.parent.mkdir(parents=True, exist_ok=True)
+        remove_stale_temporaries(self.path.parent, recursive=False, name=self.path.name)
+        fd, tmp = tempfile.mkstemp(prefix=temporary_name(self.path), suffix=".tmp", dir=self.path.parent)
+        os.fchmod(fd, 0o666 & ~current_umask())  # the mode an ordinary open gives (mkstemp's is 0600)
+        os.close(fd)
+        #: Where the file is written until it is closed.
+        self.writing = Path(tmp)
+        self.episodes = 0
         self.origin = tuple(float(v) for v in origin)
         self.plane_size = tuple(float(v) for v in plane_size)
         self.zone_radius = float(zone_radius)
@@ -287,7 +314,7 @@ class Recording:
         batching = rr.ChunkBatcherConfig(flush_tick=BATCH_SECONDS, flush_num_bytes=BATCH_BYTES)
         # A fresh random recording id (Rerun's default): two files opened together never merge.
         self._stream = rr.RecordingStream(APPLICATION_ID, make_default=False, batcher_config=batching)
-        self._stream.save(str(self.path), default_blueprint=default_blueprint(self.plane_size))
+        self._stream.save(str(self.writing), default_blueprint=default_blueprint(self.plane_size))
         self._stream.send_recording_name(name)
         self._send_properties(config or {})
         self._log_static()
@@ -303,7 +330,7 @@ class Recording:
         h = self.plane_size[1]
         # The 2D view draws +y down; flip it so that the plane reads as in the paper (+y up).
         s.log(PLANE, rr.Transform3D(translation=[0.0, h, 0.0], scale=[1.0, -1.0, 1.0]), static=True)
-        s.log(FIELD, rr.Transform3D(scale=[1.0 / FIELD_PX_PER_CM] * 3), static=True)
+        s.log(FIELD, rr.Transform3D(scale=[1.0 / field_px_per_cm(self.plane_size)] * 3), static=True)
         w = self.plane_size[0]
         border = np.array([[0, 0], [w, 0], [w, h], [0, h], [0, 0]], dtype=np.float64)
         s.log(BORDER, rr.LineStrips2D([border], colors=[_GREY], radii=[0.05]), static=True)
@@ -328,6 +355,7 @@ class Recording:
         """Log the episode's target, target zone and distance field, and the start event."""
         self.flush()
         self._path_points = []
+        self.episodes += 1
         s = self._stream
         s.set_time("episode", sequence=int(episode))
         s.set_time("step", sequence=0)
@@ -417,17 +445,26 @@ class Recording:
             )
         self._rows = {}
 
-    def close(self) -> None:
-        """Send the buffered rows, flush and close the file."""
+    def close(self, complete: bool = True) -> Path:
+        """Send the buffered rows, mark the file complete or not, flush, close and rename it: to ``path``
+        (complete) or ``NAME.partial.rrd``; return where it went."""
+        if self.writing is None:
+            return self.path
         self.flush()
+        self._stream.send_property("status", rr.AnyValues(complete=complete, episodes=self.episodes,
+                                                          frames=self.frames))
         self._stream.flush()
         self._stream.disconnect()
+        final = self.path if complete else partial_path(self.path)
+        os.replace(self.writing, final)
+        self.writing = None
+        return final
 
     def __enter__(self) -> "Recording":
         return self
 
-    def __exit__(self, *exc) -> None:
-        self.close()
+    def __exit__(self, exc_type: Any, *exc: Any) -> None:
+        self.close(complete=exc_type is None)
 
 
 #: (color, radius cm, draw order) of the line-strip entities, logged once as static components.
@@ -509,6 +546,25 @@ def read_recording(path: str | Path) -> tuple[dict[str, EntityRows], dict[str, A
             elif not col.startswith("rerun."):
                 rows.components.setdefault(col, []).extend(values)
     return entities, properties, len(reader.blueprints())
+
+
+def partial_path(path: str | Path) -> Path:
+    """Where an incomplete recording of ``path`` goes: ``NAME.partial.rrd``."""
+    path = Path(path)
+    return path.with_name(f"{path.stem}.partial{path.suffix}")
+
+
+def recording_complete(path: str | Path) -> bool | None:
+    """Whether the recording at ``path`` was closed complete (None: written before recordings said so)."""
+    from rerun.chunk import RrdReader
+
+    for chunk in RrdReader(str(path)).stream():
+        if chunk.entity_path.lstrip("/") == "__properties/status":
+            table = chunk.to_record_batch().to_pydict()
+            for k, v in table.items():
+                if k.split(":")[-1] == "complete" or k.endswith("complete"):
+                    return bool(v[0][0] if isinstance(v[0], list) else v[0])
+    return None
 
 
 def scalar_series(rows: EntityRows, timeline: str = "frame") -> tuple[np.ndarray, np.ndarray]:
@@ -621,9 +677,9 @@ class EpisodeRecorder(Hook):
             if self.out is None:
                 self._close_recording()
 
-    def close(self) -> None:
-        """Close the open recording and the renderer."""
-        self._close_recording()
+    def close(self, complete: bool = True) -> None:
+        """Close the open recording (``complete=False``: it becomes ``NAME.partial.rrd``) and the renderer."""
+        self._close_recording(complete)
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
@@ -657,13 +713,17 @@ class EpisodeRecorder(Hook):
         if self.keep_frames:
             self.frames.append(frame)
 
-    def _close_recording(self) -> None:
+    def _close_recording(self, complete: bool = True) -> None:
         if self._recording is not None:
-            self._recording.close()
+            final = self._recording.close(complete)
+            if final != self._recording.path:
+                self.files[-1] = final
+                print(f"the recording was interrupted: its episodes so far are in {final} (marked partial); "
+                      f"{self._recording.path} was left as it was", file=sys.stderr)
             self._recording = None
 
     def __enter__(self) -> "EpisodeRecorder":
         return self
 
-    def __exit__(self, *exc) -> None:
-        self.close()
+    def __exit__(self, exc_type: Any, *exc: Any) -> None:
+        self.close(complete=exc_type is None)

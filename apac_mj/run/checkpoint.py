@@ -12,6 +12,7 @@ a run keeps, and what they hold, is :mod:`apac_mj.run.run_dir`'s business.
 """
 from __future__ import annotations
 
+import io
 import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Iterable
@@ -31,12 +32,20 @@ class CheckpointError(RuntimeError):
 
 def save(obj: dict[str, Any], path: str | Path) -> Path:
     """Atomically write ``obj`` (with ``format_version`` added) to ``path``."""
+    path = Path(path)
+    data = _serialize({**obj, "format_version": FORMAT_VERSION})
+    atomic_write_bytes(path, lambda f: f.write(data))
+    return path
+
+
+def _serialize(payload: dict[str, Any]) -> bytes:
+    """The checkpoint's bytes, made in memory: a full disk then fails in the file write, as an OSError naming
+    the file (torch's own writer reports it as an unrelated RuntimeError)."""
     import torch
 
-    path = Path(path)
-    payload = {**obj, "format_version": FORMAT_VERSION}
-    atomic_write_bytes(path, lambda f: torch.save(payload, f))
-    return path
+    buf = io.BytesIO()
+    torch.save(payload, buf)
+    return buf.getvalue()
 
 
 def load(path: str | Path, required: Iterable[str] = (), map_location: str | torch.device = "cpu") -> dict[str, Any]:
@@ -69,16 +78,14 @@ def save_rotating(obj: dict[str, Any], latest: Path, previous: Path) -> Path:
     The new file is complete and fsynced before anything is renamed; a crash between the two
     renames leaves ``previous`` (and no ``latest``), which :func:`load_newest_intact` falls back to.
     """
-    import torch
-
     latest, previous = Path(latest), Path(previous)
-    payload = {**obj, "format_version": FORMAT_VERSION}
+    data = _serialize({**obj, "format_version": FORMAT_VERSION})
 
     def keep_old() -> None:
         if latest.exists():
             os.replace(latest, previous)
 
-    atomic_write_bytes(latest, lambda f: torch.save(payload, f), before_rename=keep_old)
+    atomic_write_bytes(latest, lambda f: f.write(data), before_rename=keep_old)
     return latest
 
 
@@ -107,8 +114,8 @@ def load_newest_intact(candidates: Iterable[Path], required: Iterable[str] = (),
         return obj, path
     if not errors:
         raise CheckpointError(f"checkpoint {candidates[0]} does not exist" if candidates else "no checkpoint given")
-    raise CheckpointError("; ".join(errors) + ("; no intact checkpoint is left: delete the run directory and train "
-                                               "again" if len(errors) > 1 else ""))
+    raise CheckpointError("; ".join(errors) + ("; no intact checkpoint is left, so the run cannot be resumed or "
+                                               "tested: train it again into another --out" if len(errors) > 1 else ""))
 
 
 def prune(directory: Path, pattern: str, keep: int) -> None:

@@ -71,11 +71,22 @@ def evaluate(run_dir: str | Path, protocols: Sequence[str] = ("grid", "occluded"
     if region not in (None, "test", "train"):
         raise ValueError(f"region must be 'test' or 'train', got {region!r}")
     run = RunDir(run_dir)
+    if (problem := run.problem()) is not None:
+        raise FileNotFoundError(problem)
+    with run.lock():  # the run's one writer while it is tested (a training of it is refused, and vice versa)
+        return _evaluate(run, protocols, region, device, progress, as_hooks(hooks, on_step, on_episode_start), limit)
+
+
+def _evaluate(run: RunDir, protocols: Sequence[str], region: str | None, device: str | None, progress: bool,
+              hooks: Sequence[Hook], limit: int | None) -> dict[str, Any]:
+    """:func:`evaluate` as the run's one writer."""
     cfg, agent, ckpt = load_run(run.path, device)
     spec = spec_for(cfg)
     lengths, own = ckpt.member_lengths(), ckpt.member_targets()
-    hooks = as_hooks(hooks, on_step, on_episode_start)
-    summary = run.eval_summary()
+    try:
+        summary = run.eval_summary()
+    except ValueError:  # a damaged eval/summary.json: written anew
+        summary = {}
     summary.update(run_dir=str(run.path), agent=cfg.agent.kind, task=cfg.task, seeds=list(cfg.seeds),
                    finished=run.finished())
     for protocol in protocols:

@@ -9,6 +9,7 @@ Layout (``docs/architecture.md`` has the columns)::
       eval/                <protocol>.parquet and summary.json, from the frozen tests
       recordings/          *.rrd, when training records
       DONE                 written when training finished
+      .lock                the lock of the one process writing the run (apac_mj.util.lock)
 
 :class:`RunDir` reads and writes these files; :class:`RunCheckpoint` is a
 loaded checkpoint read by name. Beside them: what a run is before it has
@@ -16,15 +17,25 @@ files (:func:`validate`, :func:`check_device`, :func:`config_dict`), the
 run's environments and agent built from its files (:func:`training_env`,
 :func:`load_run`), the config diff, the commit, and the one way to tell the
 user something (:func:`say`, on stderr so that stdout stays machine-readable).
+
+One process writes a run: :meth:`RunDir.lock` (an advisory file lock the operating system releases
+when its holder dies; a second writer is refused, naming the holder's PID), and the writer removes
+the temporary files a killed writer left. The checkpoint is the truth: config.json, the episode count
+and metrics.parquet are checked against what the checkpoint records (its config, and a digest and a
+copy of the metric rows); a file that disagrees is a :class:`RunMismatch` naming it and the way out,
+and damaged or edited metric rows are restored from the checkpoint's copy.
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import hashlib
+import io
 import json
 import subprocess
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Iterable
+from typing import TYPE_CHECKING, Any, Callable, Iterable, Iterator
 
 import numpy as np
 import pandas as pd
@@ -34,7 +45,9 @@ from apac_mj.kinematics import Geometry, Sizes
 from apac_mj.kinds import check as check_kind
 from apac_mj.run import checkpoint
 from apac_mj.suite import spec_for
-from apac_mj.util.files import atomic_write_parquet, atomic_write_text, read_json
+from apac_mj.util.files import atomic_write_bytes, atomic_write_text, read_json, remove_stale_temporaries
+from apac_mj.util.lock import locked
+from apac_mj.util.overrides import MAX_SEEDS, SEED_LIMIT
 
 if TYPE_CHECKING:  # torch, the learner and the plant load where a run is built, not where it is read
     import torch
@@ -56,6 +69,14 @@ CHECKPOINT_KEYS = ("config", "loop", "agent", "env", "babbling_generators", "met
 NETWORK_KEYS = ("agent", "env")
 #: The running statistics a checkpoint keeps (``EpisodeLoop.state_dict``; absent before they existed).
 RUNNING_KEYS = ("arbitrator", "integrator")
+#: At most this many training episodes per seed.
+MAX_EPISODES = 10**9
+
+
+class RunMismatch(ValueError):
+    """A run's files disagree with its checkpoint (edited or damaged); the message names the file and the way
+    out. Unlike a damaged checkpoint (:class:`~apac_mj.run.checkpoint.CheckpointError`), no older
+    checkpoint is tried: the checkpoints are intact."""
 
 
 def say(message: str) -> None:
@@ -85,15 +106,15 @@ def stored_config(stored: dict[str, Any]) -> dict[str, Any]:
     return migrate({k: v for k, v in stored.items() if k != "git_commit"})
 
 
-def diff(old: dict[str, Any], new: dict[str, Any], where: str, prefix: str = "") -> list[str]:
-    """Every leaf that differs between two nested dicts: ``"a.b: OLD {where}, NEW now"``, sorted by key."""
+def diff(old: dict[str, Any], new: dict[str, Any], where: str, prefix: str = "", now: str = "now") -> list[str]:
+    """Every leaf that differs between two nested dicts: ``"a.b: OLD {where}, NEW {now}"``, sorted by key."""
     out = []
     for k in sorted(set(old) | set(new)):
         a, b = old.get(k, "<missing>"), new.get(k, "<missing>")
         if isinstance(a, dict) and isinstance(b, dict):
-            out += diff(a, b, where, f"{prefix}{k}.")
+            out += diff(a, b, where, f"{prefix}{k}.", now)
         elif a != b:
-            out.append(f"{prefix}{k}: {a!r} {where}, {b!r} now")
+            out.append(f"{prefix}{k}: {a!r} {where}, {b!r} {now}")
     return out
 
 
@@ -101,12 +122,16 @@ def validate(cfg: TrainConfig) -> None:
     """Refuse a run configuration that cannot run here (a ValueError naming the field); writes nothing."""
     if not cfg.seeds:
         raise ValueError("at least one seed is needed")
-    if any(not isinstance(s, (int, np.integer)) or s < 0 for s in cfg.seeds) or len(set(cfg.seeds)) != len(cfg.seeds):
-        raise ValueError(f"seeds must be distinct non-negative integers, got {list(cfg.seeds)}")
-    if cfg.episodes < 1:
-        raise ValueError(f"episodes must be >= 1, got {cfg.episodes}")
-    if cfg.checkpoint_every < 1:
-        raise ValueError(f"checkpoint_every must be >= 1, got {cfg.checkpoint_every}")
+    if len(cfg.seeds) > MAX_SEEDS:
+        raise ValueError(f"{len(cfg.seeds)} seeds: at most {MAX_SEEDS} fit in one run (each is an ensemble member "
+                         "with its own networks); split them over several runs")
+    if (any(isinstance(s, bool) or not isinstance(s, (int, np.integer)) or not 0 <= s < SEED_LIMIT for s in cfg.seeds)
+            or len(set(cfg.seeds)) != len(cfg.seeds)):
+        raise ValueError(f"seeds must be distinct integers in [0, 2^32), got {_short(list(cfg.seeds))}")
+    for name, value, limit in (("episodes", cfg.episodes, MAX_EPISODES), ("checkpoint_every", cfg.checkpoint_every,
+                                                                         MAX_EPISODES)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 1 <= value <= limit:
+            raise ValueError(f"{name} must be an integer in [1, {limit}], got {value!r}")
     if cfg.agent.babbling_episodes < 0:
         raise ValueError(f"babbling_episodes must be >= 0, got {cfg.agent.babbling_episodes}")
     if cfg.device not in ("cpu", "cuda") and not cfg.device.startswith("cuda:"):
@@ -117,7 +142,31 @@ def validate(cfg: TrainConfig) -> None:
     if cfg.actuation not in ("servo", "kinematic"):
         raise ValueError(f"actuation must be 'servo' or 'kinematic', got {cfg.actuation!r}")
     check_kind(cfg.agent)  # an unknown kind: an error listing the registered ones
-    spec_for(cfg)  # unknown task -> KeyError listing the known ones; bad override -> TaskSpecError
+    spec = spec_for(cfg)  # unknown task -> KeyError listing the known ones; bad override -> TaskSpecError
+    if spec.plant.dynamic and cfg.actuation != "servo":
+        raise ValueError(f"task {cfg.task!r} has a {spec.plant.actuation} plant ([plant]); actuation "
+                         f"{cfg.actuation!r} would write the joint angles and skip its dynamics: use 'servo'")
+    _check_memory(cfg)
+
+
+def _short(values: list[Any], n: int = 10) -> str:
+    """A list for a message, at most ``n`` entries shown."""
+    return str(values) if len(values) <= n else f"[{', '.join(map(str, values[:n]))}, ... ({len(values)} in all)]"
+
+
+def _check_memory(cfg: TrainConfig) -> None:
+    """The replay buffers (the largest part of a run that its settings size) fit in this machine's memory."""
+    import os
+
+    floats_per_transition = 4 + 2 + 1 + 4 + 1 + 2 + 4  # s, a, r, s', done, executed a, spare (Agent's replay)
+    need = cfg.agent.replay_size * len(cfg.seeds) * floats_per_transition * 4
+    try:
+        have = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError):
+        return
+    if need > have:
+        raise ValueError(f"agent.replay_size = {cfg.agent.replay_size} for {len(cfg.seeds)} seeds needs about "
+                         f"{need / 2**30:.3g} GiB of replay buffers; this machine has {have / 2**30:.3g} GiB")
 
 
 def check_device(device: str) -> None:
@@ -170,6 +219,7 @@ def load_run(run_dir: str | Path, device: str | None = None,
     device = cfg.device if device is None else device
     check_device(device)  # a missing GPU: a clear error before anything is loaded
     ckpt = run.load_checkpoint(required=NETWORK_KEYS)
+    run.check_config(ckpt)  # config.json says what the checkpoint trained (an edited one: an error naming it)
     agent = Agent(cfg.agent, list(cfg.seeds), device=device, precision=precision or cfg.precision,
                   geometry=Geometry.from_spec(spec_for(cfg)), sizes=task_sizes(cfg))
     agent.load_state_dict(ckpt.agent)
@@ -193,6 +243,15 @@ class RunCheckpoint:
         return {"config": config, "loop": loop, "agent": agent, "env": env, **running,
                 "babbling_generators": babbling_generators, "metric_rows": metric_rows,
                 "torch_rng": torch.get_rng_state()}
+
+    @staticmethod
+    def with_metrics(layout: dict[str, Any], rows: list[dict[str, Any]], table: bytes) -> dict[str, Any]:
+        """``layout`` with the metric rows' digest and a copy of them (``table``: metrics.parquet's bytes)."""
+        import torch
+
+        return {**layout, "metric_rows": len(rows), "metric_digest": metric_digest(rows),
+                "metric_table": torch.frombuffer(bytearray(table), dtype=torch.uint8) if table else
+                torch.zeros(0, dtype=torch.uint8)}
 
     @property
     def config(self) -> dict[str, Any]:
@@ -220,6 +279,21 @@ class RunCheckpoint:
     def metric_rows(self) -> int:
         """Rows of metrics.parquet that belong to this checkpoint."""
         return int(self.data["metric_rows"])
+
+    @property
+    def metric_digest(self) -> str | None:
+        """The digest (:func:`metric_digest`) of those rows (None: a checkpoint from before digests)."""
+        return self.data.get("metric_digest")
+
+    def metric_table(self) -> list[dict[str, Any]] | None:
+        """The checkpoint's own copy of its metric rows (None: a checkpoint from before copies)."""
+        table = self.data.get("metric_table")
+        if table is None:
+            return None
+        if self.metric_rows == 0:
+            return []
+        df = pd.read_parquet(io.BytesIO(table.numpy().tobytes()))
+        return [_plain(r) for r in df.iloc[: self.metric_rows].to_dict("records")]
 
     @property
     def torch_rng(self) -> torch.Tensor:
@@ -251,6 +325,18 @@ class RunDir:
     def __repr__(self) -> str:
         return f"RunDir({str(self.path)!r})"
 
+    @contextlib.contextmanager
+    def lock(self) -> Iterator[RunDir]:
+        """Be the run's one writer for the ``with`` block (re-entrant in a process); another process holding
+        it: :class:`~apac_mj.util.lock.DirectoryLocked` naming its PID. The temporary files of a killed
+        writer are removed first. A directory this call created and left empty is removed again."""
+        with locked(self.path, "run directory"):
+            removed = remove_stale_temporaries(self.path)
+            if removed:
+                say(f"removed {len(removed)} temporary file(s) a killed writer left in {self.path}: "
+                    + ", ".join(str(p.relative_to(self.path)) for p in removed))
+            yield self
+
     @property
     def checkpoints(self) -> Path:
         return self.path / CHECKPOINTS
@@ -274,7 +360,8 @@ class RunDir:
         return None
 
     def _stored(self) -> dict[str, Any] | None:
-        return read_json(self.path / CONFIG)
+        return read_json(self.path / CONFIG, fix="put back the file as training wrote it (its checkpoint records "
+                                                 "the same settings), or use another --out")
 
     def config(self) -> dict[str, Any]:
         """The run's config as config.json holds it (without its commit); an error naming the problem
@@ -302,6 +389,7 @@ class RunDir:
         if not self.exists():
             return config, None
         old = self.config()
+        self._check_against_newest_checkpoint()  # an edited config.json: said as such, before comparing with it
         changed = diff({**old, "episodes": None}, {**config, "episodes": None}, "in the run")
         if changed:
             raise ValueError(f"{self.path} holds a run with a different config ({'; '.join(changed)}); "
@@ -322,33 +410,77 @@ class RunDir:
         commit = stored.get("git_commit") if stored is not None else git_commit()
         atomic_write_text(self.path / CONFIG, json.dumps({**config, "git_commit": commit}, indent=2) + "\n")
 
+    def check_config(self, ckpt: RunCheckpoint) -> None:
+        """config.json records the config ``ckpt`` was trained with (the episode count may be larger while an
+        extension is under way, never smaller, and equal once finished); else :class:`RunMismatch`."""
+        stored, trained = self.config(), ckpt.config
+        changed = diff({**trained, "episodes": None}, {**stored, "episodes": None}, "in the checkpoint",
+                       now="in config.json")
+        if changed:
+            raise RunMismatch(f"{self.path / CONFIG} disagrees with the run's checkpoint {ckpt.path} "
+                              f"({'; '.join(changed)}): config.json was edited or replaced, and the checkpoint "
+                              "records what was trained. Put config.json back to the checkpoint's values (nothing "
+                              "was changed; the run is intact), or train into another --out")
+        was, says = trained.get("episodes"), stored.get("episodes")
+        if says != was and (self.finished() or not isinstance(says, int) or says < was):
+            raise RunMismatch(f"{self.path / CONFIG} says {says!r} episodes but the run's checkpoint {ckpt.path} "
+                              f"holds a run of {was}{' (finished)' if self.finished() else ''}: config.json was "
+                              f"edited. Put \"episodes\": {was} back (nothing was changed; the run is intact); a "
+                              f"larger --episodes then extends it")
+
+    def _check_against_newest_checkpoint(self) -> None:
+        """:meth:`check_config` with the newest checkpoint that loads (quietly: none loads, no check)."""
+        found = self.checkpoint_files()
+        if not found:
+            return
+        try:
+            obj, path = checkpoint.load_newest_intact(found, required=("config",))
+        except checkpoint.CheckpointError:
+            return  # resuming says which file is damaged
+        self.check_config(RunCheckpoint(obj, path))
+
+    def discard_unstarted(self) -> None:
+        """Remove what a new run wrote before it failed without a checkpoint (config.json, partial metrics), so
+        that the corrected command is not refused as "a different config"."""
+        if not self.checkpoint_files():
+            for name in (CONFIG, METRICS, DONE):
+                (self.path / name).unlink(missing_ok=True)
+
     # -- DONE ----------------------------------------------------------------------------------
     def finished(self) -> bool:
         """Training finished: DONE is there."""
         return (self.path / DONE).is_file()
 
     def check_finished(self) -> bool:
-        """DONE is there and the final checkpoint loads; a damaged one un-finishes the run (with a warning)."""
+        """DONE is there and the final checkpoint loads; a damaged one un-finishes the run (with a warning).
+        config.json must agree with it (:class:`RunMismatch`), and metrics.parquet with its rows (damaged or
+        edited rows are restored from the checkpoint's copy, with a warning)."""
         if not self.finished():
             return False
         try:
-            checkpoint.load(self.checkpoints / LATEST, required=CHECKPOINT_KEYS)
-            return True
+            ckpt = RunCheckpoint(checkpoint.load(self.checkpoints / LATEST, required=CHECKPOINT_KEYS),
+                                 self.checkpoints / LATEST)
         except checkpoint.CheckpointError as e:
             say(f"warning: {self.path} is marked finished but {e}; continuing from the newest intact checkpoint")
             (self.path / DONE).unlink()
             return False
+        self.check_config(ckpt)
+        self.read_metric_rows(ckpt)
+        return True
 
     def mark_finished(self) -> None:
         atomic_write_text(self.path / DONE, "done\n")
 
     # -- metrics.parquet -----------------------------------------------------------------------
     def metric_rows(self) -> int:
-        """Rows in metrics.parquet (0 if none yet), read from the file's footer."""
+        """Rows in metrics.parquet (0 if none yet, -1 if it cannot be read), read from the file's footer."""
         import pyarrow.parquet as pq
 
         path = self.path / METRICS
-        return pq.ParquetFile(path).metadata.num_rows if path.is_file() else 0
+        try:
+            return pq.ParquetFile(path).metadata.num_rows if path.is_file() else 0
+        except Exception:  # noqa: BLE001 - a damaged file (resuming restores it from the checkpoint)
+            return -1
 
     def has_metrics(self) -> bool:
         return (self.path / METRICS).is_file()
@@ -357,21 +489,49 @@ class RunDir:
         """metrics.parquet: one row per (seed, episode)."""
         return pd.read_parquet(self.path / METRICS)
 
-    def write_metrics(self, rows: list[dict[str, Any]]) -> None:
-        """Atomically write the metric rows as metrics.parquet (columns: METRIC_COLUMNS)."""
-        atomic_write_parquet(self.path / METRICS, pd.DataFrame(rows, columns=list(METRIC_COLUMNS)))
+    def write_metrics(self, rows: list[dict[str, Any]]) -> bytes:
+        """Atomically write the metric rows as metrics.parquet (columns: METRIC_COLUMNS); return its bytes."""
+        buf = io.BytesIO()
+        pd.DataFrame(rows, columns=list(METRIC_COLUMNS)).to_parquet(buf, index=False)
+        table = buf.getvalue()
+        atomic_write_bytes(self.path / METRICS, lambda f: f.write(table))
+        return table
 
-    def read_metric_rows(self, n: int) -> list[dict[str, Any]]:
-        """The first ``n`` rows of metrics.parquet (a checkpoint's); a CheckpointError if fewer are there."""
+    def read_metric_rows(self, ckpt: RunCheckpoint) -> list[dict[str, Any]]:
+        """The metric rows of checkpoint ``ckpt``: the first ``ckpt.metric_rows`` rows of metrics.parquet,
+        checked against the checkpoint's digest. Missing, damaged, short or edited rows are restored from
+        the checkpoint's copy (metrics.parquet rewritten, with a warning); a checkpoint from before copies
+        cannot restore them: :class:`RunMismatch` naming the file."""
+        path, n = self.path / METRICS, ckpt.metric_rows
+        rows, problem = self._metric_rows(n)
+        if problem is None and ckpt.metric_digest is not None and metric_digest(rows) != ckpt.metric_digest:
+            problem = f"its first {n} rows differ from those checkpoint {ckpt.path} recorded (edited by hand?)"
+        if problem is None:
+            return rows
+        kept = ckpt.metric_table()
+        if kept is None:
+            raise RunMismatch(f"{path} {problem}, and checkpoint {ckpt.path} was written by an older release that "
+                              "kept no copy of the rows: restore metrics.parquet from a backup to resume this run "
+                              "(its checkpoints are intact; apac-mj evaluate works without it)")
+        say(f"warning: {path} {problem}; restored its {n} rows from checkpoint {ckpt.path}")
+        self.write_metrics(kept)
+        return kept
+
+    def _metric_rows(self, n: int) -> tuple[list[dict[str, Any]], str | None]:
+        """The first ``n`` rows of metrics.parquet, or why they cannot be read."""
         path = self.path / METRICS
         if n == 0:
-            return []
+            return [], None
         if not path.is_file():
-            raise checkpoint.CheckpointError(f"{path} is missing but the checkpoint expects {n} metric rows")
-        df = pd.read_parquet(path)
-        if len(df) < n:
-            raise checkpoint.CheckpointError(f"{path} has {len(df)} rows, the checkpoint expects {n}")
-        return [_plain(r) for r in df.iloc[:n].to_dict("records")]
+            return [], f"is missing but the checkpoint expects {n} metric rows"
+        try:
+            df = pd.read_parquet(path)
+        except Exception as e:  # noqa: BLE001 - pyarrow raises many types for a damaged file
+            return [], f"cannot be read ({type(e).__name__}: {e})"
+        if len(df) < n or list(df.columns) != list(METRIC_COLUMNS):
+            return [], (f"has {len(df)} rows, the checkpoint expects {n}" if len(df) < n
+                        else f"has the columns {list(df.columns)}, not {list(METRIC_COLUMNS)}")
+        return [_plain(r) for r in df.iloc[:n].to_dict("records")], None
 
     def summary(self, last: int = 100) -> dict[str, Any]:
         """Episodes, seeds, and the success rate and habit share over each seed's ``last`` training episodes."""
@@ -419,18 +579,34 @@ class RunDir:
         return sorted((self.path / EVAL).glob("*.parquet"))
 
     def write_eval(self, protocol: str, df: pd.DataFrame) -> None:
-        atomic_write_parquet(self.eval_path(protocol), df)
+        buf = io.BytesIO()
+        df.to_parquet(buf, index=False)
+        atomic_write_bytes(self.eval_path(protocol), lambda f: f.write(buf.getvalue()))
 
     def evaluated(self) -> bool:
-        """The frozen tests' summary (eval/summary.json) is there."""
-        return (self.path / EVAL / "summary.json").is_file()
+        """The frozen tests' summary (eval/summary.json) is there and reads (a damaged one: not evaluated)."""
+        try:
+            return bool(self.eval_summary())
+        except ValueError:
+            return False
 
     def eval_summary(self) -> dict[str, Any]:
         """eval/summary.json ({} if the run was not tested yet)."""
-        return read_json(self.path / EVAL / "summary.json") or {}
+        return read_json(self.path / EVAL / "summary.json",
+                         fix="run apac-mj evaluate on the run again: it rewrites the file") or {}
 
     def write_eval_summary(self, summary: dict[str, Any]) -> None:
         atomic_write_text(self.path / EVAL / "summary.json", json.dumps(summary, indent=2) + "\n")
+
+
+def metric_digest(rows: list[dict[str, Any]]) -> str:
+    """A SHA-256 of metric rows' values in METRIC_COLUMNS order (floats by their exact repr; NaN as NaN)."""
+    values = [[_scalar(r.get(c)) for c in METRIC_COLUMNS] for r in rows]
+    return hashlib.sha256(json.dumps(values, allow_nan=True).encode()).hexdigest()
+
+
+def _scalar(v: Any) -> Any:
+    return v.item() if isinstance(v, np.generic) else v
 
 
 def _plain(row: dict[str, Any]) -> dict[str, Any]:

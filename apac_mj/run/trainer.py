@@ -59,7 +59,7 @@ from apac_mj.kinds import arbitrator_for
 from apac_mj.kinematics import Geometry
 from apac_mj.run.rollout import EpisodeLoop, EpisodeState, Hook, OnEpisodeStart, OnStep, as_hooks
 from apac_mj.run.checkpoint import CheckpointError
-from apac_mj.run.run_dir import RunCheckpoint, RunDir, diff, say, task_sizes, training_env
+from apac_mj.run.run_dir import RunCheckpoint, RunDir, RunMismatch, diff, say, task_sizes, training_env, validate
 from apac_mj.suite import spec_for
 from apac_mj.types import StepInfo
 
@@ -125,6 +125,14 @@ def train(cfg: TrainConfig, out_dir: str | Path, progress: bool = True, on_step:
     finished are said on stderr, as is a fallback to an older checkpoint.
     """
     run = RunDir(out_dir)
+    validate(cfg)  # before the directory (and its lock) exist
+    with run.lock():  # one writer per run: another process writing it is refused, naming its PID
+        return _train(cfg, run, progress, hooks, on_step, on_episode_start)
+
+
+def _train(cfg: TrainConfig, run: RunDir, progress: bool, hooks: Sequence[Hook], on_step: OnStep | None,
+           on_episode_start: OnEpisodeStart | None) -> Path:
+    """:func:`train` as the run's one writer."""
     cfg = resolved_precision(cfg, run)
     config, run_episodes = run.prepare(cfg)
     if run_episodes == cfg.episodes and run.check_finished():
@@ -154,6 +162,10 @@ def train(cfg: TrainConfig, out_dir: str | Path, progress: bool = True, on_step:
     except KeyboardInterrupt:
         bar.close()
         _say_interrupted(run.path, saved.at, cfg)
+        raise
+    except Exception:
+        if run_episodes is None and saved.at is None:  # a new run that failed before its first checkpoint:
+            run.discard_unstarted()                     # no config.json left to refuse the corrected command
         raise
     finally:
         bar.close()
@@ -325,11 +337,11 @@ def _progress(bar: tqdm, loop: LoopState, episodes: int, window: collections.deq
 # -- checkpoints: save and restore ---------------------------------------------------------------
 def _save(run: RunDir, config: dict[str, Any], loop: LoopState, episodes: EpisodeLoop,
           babble_gens: list[torch.Generator], rows: list[dict[str, Any]]) -> None:
-    """metrics.parquet, then the checkpoint (the one before it kept)."""
-    run.write_metrics(rows)
-    run.save_checkpoint(RunCheckpoint.layout(
+    """metrics.parquet, then the checkpoint (the one before it kept) with the rows' digest and a copy of them."""
+    table = run.write_metrics(rows)
+    run.save_checkpoint(RunCheckpoint.with_metrics(RunCheckpoint.layout(
         config, loop.state_dict(), episodes.agent.state_dict(), episodes.env.get_state(), episodes.state_dict(),
-        [g.get_state() for g in babble_gens], len(rows)))
+        [g.get_state() for g in babble_gens], len(rows)), rows, table))
 
 
 def _restore(run: RunDir, config: dict[str, Any], episodes: EpisodeLoop,
@@ -338,8 +350,9 @@ def _restore(run: RunDir, config: dict[str, Any], episodes: EpisodeLoop,
     restored: dict[str, Any] = {}
 
     def check(ckpt: RunCheckpoint) -> None:
-        restored["rows"] = run.read_metric_rows(ckpt.metric_rows)
+        run.check_config(ckpt)  # an edited config.json: said as such (the checkpoint records what was trained)
         restored["loop"] = _apply(ckpt, config, episodes, babble_gens)
+        restored["rows"] = run.read_metric_rows(ckpt)
 
     run.load_checkpoint(check=check)
     return restored["loop"], restored["rows"]
@@ -350,10 +363,10 @@ def _apply(ckpt: RunCheckpoint, config: dict[str, Any], episodes: EpisodeLoop,
     """Put a loaded checkpoint into the agent, the environments and the generators (same config but
     the episode count, which an extended run changes)."""
     agent, env = episodes.agent, episodes.env
-    changed = diff({**ckpt.config, "episodes": None}, {**config, "episodes": None}, "in the run")
-    if changed:
-        raise CheckpointError(f"checkpoint {ckpt.path} is corrupt or incompatible: it was written with a "
-                              f"different config ({'; '.join(changed)})")
+    changed = diff({**ckpt.config, "episodes": None}, {**config, "episodes": None}, "in the checkpoint")
+    if changed:  # the run's files agree with it (RunDir.check_config): the settings asked for differ
+        raise RunMismatch(f"checkpoint {ckpt.path} was trained with other settings than those asked for "
+                          f"({'; '.join(changed)}): run with the run's settings, or use another --out")
     try:
         agent.load_state_dict(_to_device(ckpt.agent, agent.device))
         env.set_state(ckpt.env)

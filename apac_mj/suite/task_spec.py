@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import tomllib
 from pathlib import Path
 
@@ -25,6 +26,12 @@ from apac_mj.util import paths
 
 #: The arm's (shoulder, elbow) angles at every episode's start (degrees): stretched along the x axis, folded back.
 START_ANGLES = (0.0, 180.0)
+
+
+#: The largest length a task may state (cm): plane sides, link lengths, zone radius, vision noise, one
+#: episode's growth. 100 m for a 13 cm arm: larger values are typos, and the plane's distance field,
+#: renders and floats stop making sense long before 1e308.
+MAX_CM = 1e4
 
 
 class TaskSpecError(ValueError):
@@ -122,6 +129,11 @@ class TaskSpec:
             _check_positive(self, f"link_lengths ({k})", v)
         for k, v in zip(("width", "height"), self.plane_size):
             _check_positive(self, f"plane_size ({k})", v)
+        for field, value in (("zone_radius", self.zone_radius), ("link_lengths", max(self.link_lengths)),
+                             ("plane_size", max(self.plane_size)), (_NOISE_KEY, self.vision_noise_std),
+                             ("growth_per_step x steps_per_episode", self.growth_per_step * self.steps_per_episode)):
+            if value > MAX_CM:
+                raise TaskSpecError(f"task {self.name!r}: {field} must be at most {MAX_CM:g} cm, got {value!r}")
         if not math.isfinite(self.growth_per_step) or self.growth_per_step < 0:
             raise TaskSpecError(f"task {self.name!r}: growth_per_step must be finite and >= 0, got {self.growth_per_step}")
         if self.growth_start_episode < 0:
@@ -148,10 +160,14 @@ class TaskSpec:
         return self.vision_noise_std
 
     def replace(self, **overrides: Any) -> "TaskSpec":
+        """This task with ``overrides`` (TaskSpec fields), each checked and typed as a task file's value is
+        (an integer field refuses 1.5, a number refuses true; a pair takes a list or tuple of two numbers)."""
         unknown = set(overrides) - {f.name for f in dataclasses.fields(self)}
         if unknown:
             raise TaskSpecError(f"task {self.name!r}: unknown override(s) {sorted(unknown)}")
-        return dataclasses.replace(self, **overrides)
+        typed = {k: v if k == "name" or (k == "region" and isinstance(v, Region))
+                 else _coerce(k, v, f"task {self.name!r}: override {k}") for k, v in overrides.items()}
+        return dataclasses.replace(self, **typed)
 
 
 def describe(spec: TaskSpec) -> str:
@@ -262,22 +278,22 @@ def _coerce(field: str, value: Any, where: str) -> Any:
     if field == "region":
         return Region(test_y_min=_number(value, where))
     if field in _PAIRS:
-        if not isinstance(value, list) or len(value) != 2:
+        if not isinstance(value, (list, tuple)) or len(value) != 2:
             raise TaskSpecError(f"{where} must be a list of two numbers, got {value!r}")
         return (_number(value[0], where), _number(value[1], where))
     if field in _FLOATS:
         return _number(value, where)
     if field in _INTS:
-        if not isinstance(value, int) or isinstance(value, bool):
+        if not isinstance(value, (int, np.integer)) or isinstance(value, bool):
             raise TaskSpecError(f"{where} must be an integer, got {value!r}")
-        return value
+        return int(value)
     if not isinstance(value, str):
         raise TaskSpecError(f"{where} must be a string, got {value!r}")
     return value
 
 
 def _number(value: Any, where: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) or not math.isfinite(value):
         raise TaskSpecError(f"{where} must be a finite number, got {value!r}")
     return float(value)
 
@@ -285,9 +301,14 @@ def _number(value: Any, where: str) -> float:
 def load_task_file(path: str | Path) -> TaskSpec:
     path = Path(path)
     try:
-        data = tomllib.loads(path.read_text())
+        data = tomllib.loads(path.read_bytes().decode("utf-8"))
+    except UnicodeDecodeError as e:
+        raise TaskSpecError(f"{path}: not a task file: not UTF-8 text ({e}); a task file is TOML text "
+                            "(docs/extending.md)") from None
     except tomllib.TOMLDecodeError as e:
         raise TaskSpecError(f"{path}: not valid TOML: {e}") from None
+    except OSError as e:
+        raise TaskSpecError(f"{path}: cannot be read: {e.strerror or e}") from None
     return parse_task(data, name=path.stem, source=str(path))
 
 
@@ -321,11 +342,20 @@ def task_names(directory: Path | None = None) -> list[str]:
     return sorted({p.stem for p in paths.tasks_dir().glob("*.toml")} | set(_REGISTERED))
 
 
+#: What a task name may be: a file name in tasks/ without ``.toml`` (no folders, not hidden).
+_TASK_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.+-]*")
+
+
 def load_task(name: str, directory: Path | None = None) -> TaskSpec:
-    """Load ``tasks/<name>.toml`` (or a registered task); an unknown name lists the known ones."""
+    """Load ``tasks/<name>.toml`` (or a registered task); an unknown name lists the known ones. A name is
+    a file's name in the task directory, never a path out of it (a task file elsewhere: register_task)."""
     if directory is None and name in _REGISTERED:
         return _REGISTERED[name]
     where = directory or paths.tasks_dir()
+    if not isinstance(name, str) or not _TASK_NAME.fullmatch(name) or len(name) > 200:
+        raise KeyError(f"task {name!r} is not a task name: a task is a file in {where} named by its stem "
+                       f"(known: {', '.join(task_names(directory))}); for a task file elsewhere, copy it into "
+                       "that folder or add it with apac_mj.suite.register_task (docs/extending.md)")
     path = where / f"{name}.toml"
     if not path.is_file():
         raise KeyError(f"unknown task {name!r}; known tasks: {', '.join(task_names(directory))}")

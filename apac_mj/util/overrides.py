@@ -33,6 +33,12 @@ import typing
 from typing import Any, Iterable, Sequence
 
 
+#: At most this many seeds in one run (each is an ensemble member with its own networks and replay buffer).
+MAX_SEEDS = 10_000
+#: Seeds are below this (numpy's and MuJoCo's seeding take 32-bit seeds).
+SEED_LIMIT = 2**32
+
+
 class OverrideError(ValueError):
     """A ``--set`` override or a configuration value that does not fit its field."""
 
@@ -50,12 +56,14 @@ def parse_seeds(value: Any, what: str = "seeds") -> tuple[int, ...]:
     if isinstance(value, bool):
         raise OverrideError(_seed_grammar(what, value))
     if isinstance(value, int):
-        if value < 1:
-            raise OverrideError(f"{what} = {value} must be >= 1 (N means the N seeds 0..N-1)")
+        if not 1 <= value <= MAX_SEEDS:
+            raise OverrideError(f"{what} = {value} must be in [1, {MAX_SEEDS}] (N means the N seeds 0..N-1; each "
+                                "seed is an ensemble member with its own networks)")
         return tuple(range(value))
     seeds = _seed_list(value, what)
-    if len(set(seeds)) != len(seeds) or min(seeds) < 0:
-        raise OverrideError(f"{what} must be distinct non-negative ints, got {list(seeds)}")
+    if len(set(seeds)) != len(seeds) or min(seeds) < 0 or max(seeds) >= SEED_LIMIT:
+        shown = list(seeds) if len(seeds) <= 10 else f"{list(seeds[:10])} ... ({len(seeds)} seeds)"
+        raise OverrideError(f"{what} must be distinct integers in [0, 2^32), got {shown}")
     return seeds
 
 
@@ -66,13 +74,22 @@ def _seed_list(value: Any, what: str) -> tuple[int, ...]:
             lo, hi = int(m[1]), int(m[2])
             if hi < lo:
                 raise OverrideError(f"{what} must be a non-empty range: seed range {value!r} is empty")
+            _check_count(hi - lo + 1, what, value)
             return tuple(range(lo, hi + 1))
         if re.fullmatch(r"\d+(\s*,\s*\d+)+", value):
+            _check_count(value.count(",") + 1, what, value)
             return tuple(int(s) for s in value.split(","))
     if isinstance(value, (list, tuple)) and value and all(isinstance(s, int) and not isinstance(s, bool)
                                                          for s in value):
         return tuple(value)
     raise OverrideError(_seed_grammar(what, value))
+
+
+def _check_count(n: int, what: str, value: str) -> None:
+    """At most MAX_SEEDS seeds (checked before a range is expanded)."""
+    if n > MAX_SEEDS:
+        raise OverrideError(f"{what} {value[:40]!r} names {n} seeds; at most {MAX_SEEDS} fit in one run (each is an "
+                            "ensemble member with its own networks): split them over several runs")
 
 
 def _seed_grammar(what: str, value: Any) -> str:
