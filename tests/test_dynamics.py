@@ -357,3 +357,12 @@ def test_a_kinematic_run_of_a_task_with_dynamics_is_refused_before_anything_is_w
         train(TrainConfig(task=CURL, seeds=(0,), episodes=1, actuation="kinematic"), tmp_path / "run",
               progress=False)
     assert not (tmp_path / "run").exists()
+
+
+def test_plant_overrides_are_checked_like_the_file():
+    spec = suite.load_spec(CURL, plant={"actuation": "compliant", "gravity": True})
+    assert spec.plant.gravity and spec.plant.field_b == 0.0
+    with pytest.raises(TaskSpecError, match="plant.gravity must be true or false"):
+        suite.load_spec(CURL, plant={"actuation": "compliant", "gravity": "yes"})
+    with pytest.raises(TaskSpecError, match="must be a PlantSpec or a table"):
+        suite.load_spec(CURL, plant="compliant")

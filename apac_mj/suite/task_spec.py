@@ -166,6 +166,7 @@ class TaskSpec:
         if unknown:
             raise TaskSpecError(f"task {self.name!r}: unknown override(s) {sorted(unknown)}")
         typed = {k: v if k == "name" or (k == "region" and isinstance(v, Region))
+                 else _plant_override(v, f"task {self.name!r}: override plant") if k == "plant"
                  else _coerce(k, v, f"task {self.name!r}: override {k}") for k, v in overrides.items()}
         return dataclasses.replace(self, **typed)
 
@@ -585,3 +586,12 @@ def _check_task_plant(spec: TaskSpec) -> None:
         check_plant(spec.plant)
     except TaskSpecError as e:
         raise TaskSpecError(f"task {spec.name!r}: {e}") from None
+
+
+def _plant_override(value: Any, where: str) -> "PlantSpec":
+    """A ``plant`` override: a :class:`PlantSpec`, or a table of ``[plant]`` keys (checked as in a file)."""
+    if isinstance(value, PlantSpec):
+        return value
+    if isinstance(value, dict):
+        return parse_plant(value, where)
+    raise TaskSpecError(f"{where} must be a PlantSpec or a table of [plant] keys, got {value!r}")
