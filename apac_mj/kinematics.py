@@ -111,3 +111,49 @@ class Geometry:
         angles = self.joint_angles(end, elbow)
         lo_j, hi_j = self.joint_range
         return (lo_j - angles).clamp(-bound, bound), (hi_j - angles).clamp(-bound, bound)
+
+
+#: The action spec's name of the paper's actions (``apac_mj.suite.planar_arm``): joint-angle changes in degrees.
+ANGLE_ACTIONS = "joint_angle_change_deg"
+
+
+@dataclasses.dataclass(frozen=True)
+class Sizes:
+    """The agent's sizes, read from the task's dm_env specs (:meth:`from_specs`): a task that observes joint
+    velocities or commands torques needs no agent edit. The defaults are the paper's.
+
+    The agent's state is ``[end (2), elbow (2), target (2), extra ...]``: every observed array but the vision
+    flag, in the observation's order, the paper's 6 positions first.
+    """
+
+    #: Length of the agent's state: the paper's 6 positions plus the task's extra observations
+    #: (e.g. joint velocities, deg/s).
+    state_dim: int = 6
+    #: Length of an action.
+    action_dim: int = 2
+    #: Bound of each action component (the action spec's): 180 degrees for joint-angle changes, or N·m.
+    action_bound: float = 180.0
+    #: The actions are joint-angle changes (degrees), which the joint range limits (:class:`Geometry`);
+    #: False: other actions (torques), bounded only by ``action_bound``.
+    angle_actions: bool = True
+
+    @property
+    def extra_dim(self) -> int:
+        """Observed entries beyond the paper's 6 positions."""
+        return self.state_dim - 6
+
+    @classmethod
+    def from_specs(cls, observation_spec, action_spec) -> "Sizes":
+        """Sizes from a dm_env environment's ``observation_spec()`` (a dict of arrays whose first three are
+        end_effector, elbow and target) and ``action_spec()`` (a bounded array, symmetric bounds)."""
+        names = list(observation_spec)
+        if names[:3] != ["end_effector", "elbow", "target"]:
+            raise ValueError(f"the agent needs the observations end_effector, elbow, target first, got {names}")
+        state_dim = sum(int(np.prod(s.shape)) for name, s in observation_spec.items() if name != "vision")
+        lo, hi = np.broadcast_to(action_spec.minimum, action_spec.shape), np.broadcast_to(action_spec.maximum,
+                                                                                            action_spec.shape)
+        if len(action_spec.shape) != 1 or not np.all(hi == -lo) or not np.all(hi == hi.flat[0]) or hi.flat[0] <= 0:
+            raise ValueError(f"the agent needs a 1-D action with one symmetric bound, got shape "
+                             f"{action_spec.shape}, bounds [{action_spec.minimum}, {action_spec.maximum}]")
+        return cls(state_dim=state_dim, action_dim=int(action_spec.shape[0]), action_bound=float(hi.flat[0]),
+                   angle_actions=action_spec.name == ANGLE_ACTIONS)

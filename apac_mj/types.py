@@ -208,6 +208,7 @@ class Policy(Protocol):
     cfg: AgentConfig  # the exploration schedule (``ou_sigma_at``)
     device: torch.device
     noise: Any  # the exploration noise (``apac_mj.agent.noise.OUNoise``): ``reset(mask)``, ``sample(active, sigma)``
+    sizes: Any  # the task's sizes (``apac_mj.kinematics.Sizes``): state and action dimensions, action bound
 
     def actor_action(self, state: torch.Tensor) -> torch.Tensor:
         """Habit proposal ``[E, 6] -> [E, 2]`` degrees (no noise)."""

@@ -12,7 +12,7 @@ from apac_mj import suite  # noqa: E402
 
 def test_every_task_is_registered():
     assert apac_gym.ENV_IDS == [f"apac_mj/{t}-v0" for _, t in suite.ALL_TASKS]
-    assert len(apac_gym.ENV_IDS) == 14 and all(i in gymnasium.registry for i in apac_gym.ENV_IDS)
+    assert len(apac_gym.ENV_IDS) == 18 and all(i in gymnasium.registry for i in apac_gym.ENV_IDS)
     assert apac_gym.register_all() == apac_gym.ENV_IDS  # idempotent
 
 
@@ -21,10 +21,11 @@ def test_every_task_is_registered():
 def test_check_env(task):
     from gymnasium.utils.env_checker import check_env
 
-    env = gymnasium.make(apac_gym.env_id(task), actuation="kinematic")
+    plant = suite.load_spec(task).plant  # a task with dynamics runs its own servos (or torques)
+    env = gymnasium.make(apac_gym.env_id(task), actuation="servo" if plant.dynamic else "kinematic")
     check_env(env.unwrapped, skip_render_check=True)
     obs, info = env.reset(seed=3)
-    assert obs.shape == (6,) and obs.dtype == np.float32 and info["vision"]
+    assert obs.shape == (8 if plant.observe_velocities else 6,) and obs.dtype == np.float32 and info["vision"]
     env.close()
 
 

@@ -270,3 +270,31 @@ def test_dashed_forward_model_arm_geometry():
     np.testing.assert_allclose(dashes[:5, 0, 0], 15.0 + np.arange(5) * 1.2)
     np.testing.assert_allclose(np.linalg.norm(dashes[:, 1] - dashes[:, 0], axis=1), 0.6)
     np.testing.assert_allclose(dashes[5:, :, 0], 21.0)
+
+
+def test_a_task_with_dynamics_records_its_physics(tmp_path):
+    """The commanded arm beside the reached one, the field's force at the hand, the load and the joint
+    velocities; the paper's ideal arm records none of them."""
+    import dataclasses
+
+    from apac_mj.suite.task_spec import load_task
+
+    task = "changing_target_compliant_curl_field"
+    plant = dataclasses.replace(load_task(task).plant, field_on_episode=0)
+    path = tmp_path / "curl.rrd"
+    _record_plain_rollout(path, task, episodes=1, plant=plant)
+    entities, _, _ = R.read_recording(path)
+    assert all(p in entities for p in R.PLANT_PATHS), [p for p in R.PLANT_PATHS if p not in entities]
+    _, speed = R.scalar_series(entities[f"{R.JOINT_VELOCITY}/shoulder"])
+    _, force = R.scalar_series(entities[R.HAND_FORCE_SIZE])
+    assert np.max(np.abs(speed)) > 10.0 and np.max(force) > 0.1  # the arm moved and the field pushed
+    _, load = R.scalar_series(entities[R.LOAD])
+    assert np.all(load == 0.0)
+    ideal, _, _ = R.read_recording(_paper_rollout(tmp_path))
+    assert not any(p in ideal for p in R.PLANT_PATHS)
+
+
+def _paper_rollout(tmp_path: Path) -> Path:
+    path = tmp_path / "ideal.rrd"
+    _record_plain_rollout(path, "changing_target", episodes=1)
+    return path

@@ -52,8 +52,10 @@ def test_task_files_state_only_what_differs_from_the_defaults(task):
     spec, default = load_task(task), TaskSpec(name=task)
     data = tomllib.loads((paths.tasks_dir() / f"{task}.toml").read_text())
     stated = {f"{sec}.{k}" for sec, table in data.items() if isinstance(table, dict) for k in table}
-    changed = [f.name for f in dataclasses.fields(spec) if f.name not in ("name", "description")
+    changed = [f.name for f in dataclasses.fields(spec) if f.name not in ("name", "description", "plant")
                and getattr(spec, f.name) != getattr(default, f.name)]
+    changed += [f"plant.{f.name}" for f in dataclasses.fields(spec.plant)  # [plant]: one key per field
+                if getattr(spec.plant, f.name) != getattr(default.plant, f.name)]
     assert len(stated) == len(changed), f"{task}.toml restates a default: {sorted(stated)} vs changed {changed}"
     assert spec.description
     assert (spec.target_mode == "static") == task.startswith("static_target")

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import copy
+import dataclasses
 from typing import Sequence
 
 import numpy as np
@@ -27,7 +28,7 @@ from torch import nn
 
 from apac_mj.agent.replay import EnsembleReplay
 from apac_mj.config import AgentConfig
-from apac_mj.kinematics import Geometry
+from apac_mj.kinematics import Geometry, Sizes
 from apac_mj.agent.networks import build_actor, build_critic, build_forward_model, build_inverse_model
 from apac_mj.agent.noise import OUNoise
 
@@ -55,7 +56,7 @@ class Agent:
     """
 
     def __init__(self, cfg: AgentConfig, seeds: Sequence[int], device: str = "cpu",
-                 precision: str = "fp32", geometry: Geometry | None = None) -> None:
+                 precision: str = "fp32", geometry: Geometry | None = None, sizes: Sizes | None = None) -> None:
         if len(seeds) < 1:
             raise ValueError("Agent needs at least one seed")
         if precision not in PRECISIONS:
@@ -64,22 +65,27 @@ class Agent:
         if self.device.type == "cuda" and not torch.cuda.is_available():
             raise ValueError("device 'cuda' requested but CUDA is not available")
         torch.set_flush_denormal(True)
+        #: The task's sizes (state and action dimensions, action bound), from its dm_env specs.
+        self.sizes = sizes or Sizes()
+        self.state_dim, self.action_dim = self.sizes.state_dim, self.sizes.action_dim
+        cfg = in_action_units(cfg, self.sizes)
         self.cfg, self.seeds, self.precision = cfg, [int(s) for s in seeds], precision
         self.geometry = geometry or Geometry()
         self.plane_scale = _plane_scale(cfg, self.geometry)
         self.E = len(self.seeds)
         gens = [member_generators(s) for s in self.seeds]
         init = [g[0] for g in gens]
-        self.actor = build_actor(cfg.actor_hidden, init).to(self.device)
-        self.critic = build_critic(cfg.critic_hidden, init, cfg.critic_form).to(self.device)
-        self.forward_model = build_forward_model(cfg.forward_hidden, self.plane_scale, init).to(self.device)
-        self.inverse_model = build_inverse_model(cfg.inverse_hidden, init).to(self.device)
+        S, A = self.state_dim, self.action_dim
+        self.actor = build_actor(cfg.actor_hidden, init, S, A).to(self.device)
+        self.critic = build_critic(cfg.critic_hidden, init, cfg.critic_form, S, A).to(self.device)
+        self.forward_model = build_forward_model(cfg.forward_hidden, self.plane_scale, init, A).to(self.device)
+        self.inverse_model = build_inverse_model(cfg.inverse_hidden, init, A).to(self.device)
         self.target_actor = _frozen_copy(self.actor)
         self.target_critic = _frozen_copy(self.critic)
         self.optimizer, self._views = _member_adam(
             {n: (getattr(self, n), getattr(cfg, lr)) for n, lr in TRAINED.items()}, self.E, cfg.weight_decay)
-        self.replay = EnsembleReplay([g[1] for g in gens], cfg.replay_size, device=self.device)
-        self.noise = OUNoise([g[2] for g in gens], theta=cfg.ou_theta, sigma=cfg.ou_sigma, device=self.device)
+        self.replay = EnsembleReplay([g[1] for g in gens], cfg.replay_size, S, A, device=self.device)
+        self.noise = OUNoise([g[2] for g in gens], dim=A, theta=cfg.ou_theta, sigma=cfg.ou_sigma, device=self.device)
         self._soft_pairs = [(t.detach(), o.detach()) for net, tnet in
                             ((self.actor, self.target_actor), (self.critic, self.target_critic))
                             for t, o in zip(tnet.parameters(), net.parameters())]
@@ -99,7 +105,12 @@ class Agent:
 
     def feasible_range(self, s: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Joint-angle changes ``(low, high)`` ``[..., 2]`` that keep both joints in range from the pose in
-        ``s`` (raw cm: [end, elbow, ...]); ``±action_scale`` for unbounded joints."""
+        ``s`` (raw cm: [end, elbow, ...]); ``±action_scale`` for unbounded joints and for actions that are
+        not joint-angle changes (torques)."""
+        if not self.sizes.angle_actions:
+            lo = torch.full((*s.shape[:-1], self.action_dim), -self.cfg.action_scale, dtype=s.dtype,
+                            device=s.device)
+            return lo, -lo
         return self.geometry.feasible_changes(s[..., 0:2], s[..., 2:4], self.cfg.action_scale)
 
     def to_action(self, u: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
@@ -132,28 +143,29 @@ class Agent:
     @torch.no_grad()
     def actor_action(self, state: torch.Tensor) -> torch.Tensor:
         """Habit proposal ``pi(s)``: ``[E,6] -> [E,2]`` degrees (no noise)."""
-        s = self._check("state", state, 6)
+        s = self._check("state", state, self.state_dim)
         actor = self.target_actor if self.cfg.act_with_target_actor else self.actor
         return self.to_action(actor(self._pos(s)[:, None])[:, 0], s)
 
     @torch.no_grad()
     def inverse_action(self, state: torch.Tensor) -> torch.Tensor:
         """Planning proposal: ``[end, elbow, target]`` ``[E,6] -> [E,2]`` degrees (no noise)."""
-        s = self._check("state", state, 6)
-        return self.to_action(self.inverse_model(self._pos(s)[:, None])[:, 0], s)
+        s = self._check("state", state, self.state_dim)
+        return self.to_action(self.inverse_model(self._pos(s[:, :6])[:, None])[:, 0], s)
 
     @torch.no_grad()
     def predict_arm(self, arm: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
         """Forward model: ``[end, elbow]`` ``[E,4]`` + action ``[E,2]`` -> next ``[end, elbow]`` ``[E,4]``."""
-        x = torch.cat([self._pos(self._check("arm", arm, 4)), self._act(self._check("action", action, 2))], -1)
+        x = torch.cat([self._pos(self._check("arm", arm, 4)), self._act(self._check("action", action, self.action_dim))],
+                      -1)
         return self.forward_model(x[:, None])[:, 0]
 
     @torch.no_grad()
     def td_error(self, s: torch.Tensor, a: torch.Tensor, r: torch.Tensor, s2: torch.Tensor,
                  done: torch.Tensor) -> torch.Tensor:
         """``delta = r + gamma (1 - done) Q'(s2, pi'(s2)) - Q(s, a)`` per member: ``[E]``."""
-        s, s2 = self._check("s", s, 6)[:, None], self._check("s2", s2, 6)[:, None]
-        a = self._check("a", a, 2)[:, None]
+        s, s2 = self._check("s", s, self.state_dim)[:, None], self._check("s2", s2, self.state_dim)[:, None]
+        a = self._check("a", a, self.action_dim)[:, None]
         r, done = self._check("r", torch.as_tensor(r)[:, None], 1), self._check("done", torch.as_tensor(done)[:, None], 1)
         y = self._target(r, s2, done)
         return (y - self.critic(self._pos(s), self._act(a)))[:, 0]
@@ -220,7 +232,7 @@ class Agent:
         actor_loss = -self.critic(x, self._act(pi), detach=True).float().mean(1)
         if cfg.habit_distillation_weight > 0:  # kinds that arbitrate only (apac_mj.kinds.check)
             with torch.no_grad():
-                plan = self.to_action(self.inverse_model(x).float(), s)
+                plan = self.to_action(self.inverse_model(x[..., :6]).float(), s)
             distance = ((pi - plan) / cfg.action_scale).pow(2).sum(-1).mean(1)
             actor_loss = actor_loss + cfg.habit_distillation_weight * distance
         if cfg.feasibility_weight > 0:
@@ -279,6 +291,18 @@ def _member_adam(nets: dict[str, tuple[nn.Module, float]], E: int,
     groups = [{"params": [v for vs in views[n] for v in vs], "lr": lr} for n, (_, lr) in nets.items()]
     opt = torch.optim.Adam(groups, weight_decay=weight_decay, fused=True)
     return opt, views
+
+
+def in_action_units(cfg: AgentConfig, sizes: Sizes) -> AgentConfig:
+    """``cfg`` for a task's actions: unchanged (the same object) for joint-angle changes; for other actions
+    (torques) the action scale becomes the task's bound and the babbling range and exploration noise, given
+    in degrees of a 180-degree scale, keep their fraction of the action range."""
+    if sizes.angle_actions:
+        return cfg
+    r = sizes.action_bound / cfg.action_scale
+    return dataclasses.replace(cfg, action_scale=sizes.action_bound, babbling_scale=cfg.babbling_scale * r,
+                               ou_sigma=cfg.ou_sigma * r,
+                               ou_sigma_initial=None if cfg.ou_sigma_initial is None else cfg.ou_sigma_initial * r)
 
 
 def _plane_scale(cfg: AgentConfig, geometry: Geometry) -> float:

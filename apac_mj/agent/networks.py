@@ -131,21 +131,25 @@ class EnsembleCritic(nn.Module):
         return self.out(h, detach).squeeze(-1)
 
 
-def build_actor(hidden: Sequence[int], gens: Sequence[torch.Generator]) -> EnsembleMLP:
-    """Actor pi(s): state (6) -> relu -> relu -> 2 x tanh, in [-1, 1] (the agent maps it to degrees)."""
-    return EnsembleMLP([6, *hidden, 2], "relu", "tanh", 1.0, gens)
+def build_actor(hidden: Sequence[int], gens: Sequence[torch.Generator], state_dim: int = 6,
+                action_dim: int = 2) -> EnsembleMLP:
+    """Actor pi(s): state (6, the paper's; more if the task observes more) -> relu -> relu -> action (2) x tanh,
+    in [-1, 1] (the agent maps it to the action's units)."""
+    return EnsembleMLP([state_dim, *hidden, action_dim], "relu", "tanh", 1.0, gens)
 
 
-def build_critic(hidden: Sequence[int], gens: Sequence[torch.Generator], form: str = "concat") -> EnsembleCritic:
+def build_critic(hidden: Sequence[int], gens: Sequence[torch.Generator], form: str = "concat", state_dim: int = 6,
+                 action_dim: int = 2) -> EnsembleCritic:
     """Critic Q(s, a): state (6), action (2) -> scalar."""
-    return EnsembleCritic(6, 2, hidden, gens, form)
+    return EnsembleCritic(state_dim, action_dim, hidden, gens, form)
 
 
-def build_forward_model(hidden: Sequence[int], scale: float, gens: Sequence[torch.Generator]) -> EnsembleMLP:
+def build_forward_model(hidden: Sequence[int], scale: float, gens: Sequence[torch.Generator],
+                        action_dim: int = 2) -> EnsembleMLP:
     """Forward model: [end, elbow] (4) + action (2) -> sigmoid -> sigmoid -> 4 x sigmoid x scale (cm)."""
-    return EnsembleMLP([6, *hidden, 4], "sigmoid", "sigmoid", scale, gens)
+    return EnsembleMLP([4 + action_dim, *hidden, 4], "sigmoid", "sigmoid", scale, gens)
 
 
-def build_inverse_model(hidden: Sequence[int], gens: Sequence[torch.Generator]) -> EnsembleMLP:
-    """Inverse model: [end_t, elbow_t, end_{t+1}] (6) -> relu -> relu -> 2 x tanh, in [-1, 1]."""
-    return EnsembleMLP([6, *hidden, 2], "relu", "tanh", 1.0, gens)
+def build_inverse_model(hidden: Sequence[int], gens: Sequence[torch.Generator], action_dim: int = 2) -> EnsembleMLP:
+    """Inverse model: [end_t, elbow_t, end_{t+1}] (6) -> relu -> relu -> action (2) x tanh, in [-1, 1]."""
+    return EnsembleMLP([6, *hidden, action_dim], "relu", "tanh", 1.0, gens)

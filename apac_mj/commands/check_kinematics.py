@@ -21,6 +21,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="largest allowed absolute coordinate error in cm (default 1e-9)")
     p.add_argument("--actuation", choices=("servo", "kinematic"), default="servo",
                    help="servo: position servos move the arm (default); kinematic: angles written exactly")
+    p.add_argument("--task", default="changing_target",
+                   help="task whose arm to check (default changing_target); a task with dynamics ([plant]) holds "
+                        "its hand load and force field and is checked after every sub-step, while moving")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     p.set_defaults(func=run)
 
@@ -30,8 +33,13 @@ def run(args: argparse.Namespace) -> int:
     from apac_mj.suite import load_spec
     from apac_mj.suite.regions import region_stats
 
-    report = check_kinematics(args.samples, args.seed, args.tolerance, args.actuation, progress=not args.no_progress)
-    print(f"checked {report.samples} configurations ({report.actuation} actuation) + 4 joint-limit corners")
+    report = check_kinematics(args.samples, args.seed, args.tolerance, args.actuation, progress=not args.no_progress,
+                              task=args.task)
+    if report.max_joint_speed > 0:
+        print(f"task {report.task}: checked {report.samples} actions x every sub-step while moving (joint speeds up "
+              f"to {report.max_joint_speed:.0f} deg/s) + 4 joint-limit corners")
+    else:
+        print(f"checked {report.samples} configurations ({report.actuation} actuation) + 4 joint-limit corners")
     print(f"worst end-effector error: {report.worst_end_effector:.3e} cm")
     print(f"worst elbow error:        {report.worst_elbow:.3e} cm")
     stats = region_stats(load_spec("changing_target"))

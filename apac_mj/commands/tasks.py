@@ -12,7 +12,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "angle-grid test targets fall in it.")
     p.add_argument("--regions", action="store_true", help="measure the test region of each task (a few seconds)")
     p.add_argument("--show", metavar="NAME", default=None,
-                   help="print every value of task NAME (its file states only what differs from the defaults)")
+                   help="print every value of task NAME (its file states only what differs from the defaults), "
+                        "the [plant] values with their units")
     p.set_defaults(func=run)
 
 
@@ -27,6 +28,8 @@ def run(args: argparse.Namespace) -> int:
         s = load_task(name)
         line = (f"{name:48s} target={s.target_mode:8s} kinematics={s.kinematics_mode:8s} "
                 f"vision={s.vision:12s} region={s.target_region}")
+        if s.plant.dynamic:
+            line += f"  plant={s.plant.actuation}"
         if args.regions:
             r = region_stats(s)
             line += (f"  test y>={r.test_y_min}: {r.test_area_fraction:.3f} of area, "

@@ -21,7 +21,7 @@ from apac_mj.config import AgentConfig, TrainConfig
 from apac_mj.kinematics import Geometry
 from apac_mj.recording.recording import RENDER, EpisodeRecorder, read_recording
 from apac_mj.run.rollout import EpisodeLoop
-from apac_mj.run.run_dir import RunDir, config_dict, load_run, say, training_env
+from apac_mj.run.run_dir import RunDir, config_dict, load_run, say, task_sizes, training_env
 from apac_mj.suite import spec_for
 from apac_mj.suite.render import write_video
 from apac_mj.suite.vec_env import VecEnv
@@ -87,7 +87,7 @@ def load_agent(run: str | Path | None, task: str | None, agent: str | None, seed
     networks seeded from ``seed``."""
     if run is None:
         cfg = TrainConfig(task=task or "changing_target", seeds=(seed,), agent=AgentConfig(kind=agent or kinds.DEFAULT))
-        net = Agent(cfg.agent, cfg.seeds, geometry=Geometry.from_spec(spec_for(cfg)))
+        net = Agent(cfg.agent, cfg.seeds, geometry=Geometry.from_spec(spec_for(cfg)), sizes=task_sizes(cfg))
         return cfg, net, cfg.agent.planning_episodes if as_episode is None else as_episode, None, {}
     cfg, net, ckpt = load_run(run, device="cpu", precision="fp32")
     if member >= len(cfg.seeds):

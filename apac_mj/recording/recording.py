@@ -67,6 +67,19 @@ L1 = "series/link_lengths/l1"
 L2 = "series/link_lengths/l2"
 VISION = "series/vision"
 EVENTS = "events"
+# The plant's dynamics (tasks with a [plant] table only; docs/environment.md):
+#: The arm at the servos' commanded angles (compliant actuation: where the arm is told to go).
+ARM_COMMANDED = "plane/arm/commanded"
+#: The force field's force at the hand, drawn from the hand, FORCE_CM_PER_N cm per newton.
+HAND_FORCE = "plane/hand_force"
+LOAD = "series/plant/load_kg"
+HAND_FORCE_SIZE = "series/plant/hand_force_N"
+JOINT_VELOCITY = "series/plant/joint_velocity"
+#: Entity paths a recording of a task with dynamics adds.
+PLANT_PATHS = (ARM_COMMANDED, HAND_FORCE, LOAD, HAND_FORCE_SIZE, f"{JOINT_VELOCITY}/shoulder",
+               f"{JOINT_VELOCITY}/elbow")
+#: Length of the drawn hand force (cm per N).
+FORCE_CM_PER_N = 0.5
 
 #: Entity paths every recording holds (the forward-model arm, the state-estimate error and the arbitrator's
 #: inputs only where an agent acted).
@@ -120,6 +133,24 @@ class StepRecord:
     estimated_state: np.ndarray = dataclasses.field(default_factory=lambda: np.full(6, np.nan))
     #: The arbitrator's inputs to the decision that chose this step's controller (``name -> value``).
     arbitration: dict[str, float] = dataclasses.field(default_factory=dict)
+    #: The plant (tasks with dynamics; NaN for the paper's ideal arm): the servos' commanded angles (degrees;
+    #: NaN under torque actuation), the joint velocities (deg/s), the field's force at the hand (N) and the
+    #: hand load (kg).
+    commanded_angles: np.ndarray = dataclasses.field(default_factory=lambda: np.full(2, np.nan))
+    joint_velocities: np.ndarray = dataclasses.field(default_factory=lambda: np.full(2, np.nan))
+    hand_force: np.ndarray = dataclasses.field(default_factory=lambda: np.full(2, np.nan))
+    load: float = float("nan")
+
+    def with_plant(self, physics: Any) -> "StepRecord":
+        """This record with the plant's readings from ``physics`` (a ``planar_arm.Physics``); unchanged for
+        the paper's ideal arm."""
+        plant = physics.plant
+        if plant is None:
+            return self
+        commanded = physics.servo_setpoint() if plant.actuation == "compliant" else np.full(2, np.nan)
+        return dataclasses.replace(self, commanded_angles=_f64(commanded),
+                                   joint_velocities=_f64(physics.joint_velocities()),
+                                   hand_force=_f64(physics.field_force()), load=float(physics.load))
 
     @classmethod
     def from_step_info(cls, info: StepInfo, member: int) -> "StepRecord":
@@ -134,7 +165,7 @@ class StepRecord:
             reward=float(at("reward")), distance=float(at("distance")), delta=float(at("delta")),
             habit=bool(at("habit")), predicted_arm=_f64(at("predicted_arm")),
             vision=bool(at("vision")), reached=bool(at("reached")), done=bool(at("done")),
-            estimated_state=_f64(np.asarray(info.next_state)[member]),
+            estimated_state=_f64(np.asarray(info.next_state)[member, :6]),  # the positions (not proprioception)
             arbitration={k: float(np.asarray(v)[member]) for k, v in getattr(info, "arbitration", {}).items()},
         )
 
@@ -175,6 +206,8 @@ def default_blueprint(plane_size: Sequence[float] = (30.0, 30.0)) -> rrb.Bluepri
              ESTIMATE_ERROR, VISION),
         view("kinematics error: max |MuJoCo - motion function| (cm)", KINEMATICS_ERROR),
         view("link lengths (cm)", L1, L2),
+        rrb.TimeSeriesView(origin="series/plant",
+                           name="plant: joint velocities (deg/s), field force at the hand (N), hand load (kg)"),
     )
     return rrb.Blueprint(
         rrb.Horizontal(
@@ -185,7 +218,8 @@ def default_blueprint(plane_size: Sequence[float] = (30.0, 30.0)) -> rrb.Bluepri
             ),
             # Origin "/" so that the plane entity's y-flip applies (a view's own origin transform is ignored).
             rrb.Spatial2DView(origin="/", contents=f"+ {PLANE}/**",
-                              name="plane (cm): MuJoCo black, motion function orange, forward model dashed green",
+                              name="plane (cm): MuJoCo black, motion function orange, forward model dashed green, "
+                                   "commanded dashed purple, field force red",
                               visual_bounds=rrb.VisualBounds2D(x_range=[0, w], y_range=[0, h])),
             series,
             column_shares=[1, 1.2, 1.2],
@@ -361,6 +395,13 @@ class Recording:
         self._buffer(ARM_FORWARD_MODEL, e, k, _dashed(_arm_strip(rec.predicted_arm, self.origin)) if predicted else [])
         self._path_points.append(rec.true_arm[:2].copy())
         self._buffer(PATH, e, k, [np.array(self._path_points)])
+        if np.all(np.isfinite(rec.commanded_angles)):
+            end, elbow = motion_function(*rec.commanded_angles, *rec.link_lengths, self.origin)
+            self._buffer(ARM_COMMANDED, e, k, _dashed(_arm_strip(np.concatenate([end, elbow]), self.origin)))
+        if np.all(np.isfinite(rec.hand_force)):
+            hand = rec.true_arm[:2]
+            force = [np.array([hand, hand + FORCE_CM_PER_N * rec.hand_force])] if np.any(rec.hand_force) else []
+            self._buffer(HAND_FORCE, e, k, force)
 
     def _log_series(self, rec: StepRecord) -> None:
         values = {
@@ -371,6 +412,8 @@ class Recording:
             L1: rec.link_lengths[0], L2: rec.link_lengths[1], VISION: 1.0 if rec.vision else 0.0,
             ESTIMATE_ERROR: estimate_error(rec),
             **{f"{ARBITRATION_INPUTS}/{name}": value for name, value in rec.arbitration.items()},
+            LOAD: rec.load, HAND_FORCE_SIZE: float(np.hypot(*rec.hand_force)),
+            f"{JOINT_VELOCITY}/shoulder": rec.joint_velocities[0], f"{JOINT_VELOCITY}/elbow": rec.joint_velocities[1],
         }
         for path, value in values.items():
             if np.isfinite(value):
@@ -428,6 +471,7 @@ class Recording:
 _STRIP_STYLES = {
     ARM_MUJOCO: (_BLACK, 0.3, 20.0), ARM_MOTION_FUNCTION: (_ORANGE, 0.1, 21.0),
     ARM_FORWARD_MODEL: (_GREEN, 0.15, 22.0), PATH: (_BLUE, 0.08, 15.0),
+    ARM_COMMANDED: (_PURPLE, 0.12, 19.0), HAND_FORCE: (_RED, 0.12, 23.0),
 }
 
 
@@ -546,7 +590,7 @@ def step_record_from_env(env: control.Environment, episode: int, timestep: dm_en
         predicted_arm=np.full(4, np.nan) if predicted_arm is None else _f64(predicted_arm),
         vision=bool(timestep is None or timestep.observation["vision"][0] > 0),
         reached=distance <= task.spec.zone_radius, done=not first and timestep.last(),
-    )
+    ).with_plant(physics)
 
 
 def recording_for_env(path: str | Path, env: control.Environment, config: dict[str, Any] | None = None, *,
@@ -615,7 +659,7 @@ class EpisodeRecorder(Hook):
         start = StepRecord(
             episode=episode, step=0, true_arm=np.concatenate([physics.end_effector(), physics.elbow()]),
             joint_angles=physics.joint_angles(), link_lengths=physics.link_lengths(), target=physics.target(),
-            distance=physics.distance_to_target(), vision=True)
+            distance=physics.distance_to_target(), vision=True).with_plant(physics)
         self._start = (start, self._render(physics))
 
     def on_step(self, info: StepInfo, vec_env: VecEnv) -> None:
@@ -623,7 +667,7 @@ class EpisodeRecorder(Hook):
         m = self.member
         if not self._recording_episode or not bool(np.asarray(info.active)[m]):
             return
-        rec = StepRecord.from_step_info(info, m)
+        rec = StepRecord.from_step_info(info, m).with_plant(vec_env.physics(m))
         rec.step += 1  # StepInfo counts the step at which the action was taken; the record, the arm after it
         if self._start is not None:
             self._open_episode(rec.episode, vec_env)

@@ -37,7 +37,6 @@ import torch
 
 from apac_mj.agent.arbitration import HISTORY, push_delta
 from apac_mj.agent import integrator as integrators
-from apac_mj.suite.planar_arm import ACTION_BOUND
 from apac_mj.suite.vec_env import VecEnv
 from apac_mj.types import ArbitrationContext, Arbitrator, Decision, Integrator, Observation, Policy, StepInfo
 
@@ -84,6 +83,15 @@ def observed_state(obs: Observation, device: torch.device) -> torch.Tensor:
     return torch.as_tensor(np.concatenate([obs.arm, obs.target], axis=1), dtype=torch.float32, device=device)
 
 
+def with_extra(positions: torch.Tensor, vec_env: VecEnv) -> torch.Tensor:
+    """``[E, 6]`` positions followed by the task's extra observations (``vec_env.extra``, e.g. joint
+    velocities): the agent's state; the positions alone for the paper's tasks."""
+    if not vec_env.extra.shape[1]:
+        return positions
+    extra = torch.as_tensor(vec_env.extra, dtype=positions.dtype, device=positions.device)
+    return torch.cat([positions, extra], 1)
+
+
 @dataclasses.dataclass(kw_only=True)
 class EpisodeState:
     """What every member carries from step to step within its episode (the one copy of this bookkeeping)."""
@@ -107,15 +115,16 @@ class EpisodeState:
         self.estimate_error_sum = np.zeros(E) if self.estimate_error_sum is None else self.estimate_error_sum
 
     @staticmethod
-    def fresh_fields(E: int, device: torch.device) -> dict[str, Any]:
-        """Keyword arguments of a carry at the start of nothing (every member to be reset)."""
-        return dict(state=torch.zeros(E, 6, device=device), step=np.zeros(E, dtype=np.int64),
+    def fresh_fields(E: int, device: torch.device, state_dim: int = 6) -> dict[str, Any]:
+        """Keyword arguments of a carry at the start of nothing (every member to be reset); ``state_dim``:
+        the agent's (6, the paper's, plus the task's extra observations)."""
+        return dict(state=torch.zeros(E, state_dim, device=device), step=np.zeros(E, dtype=np.int64),
                     last_delta=np.full(E, np.nan), ret=np.zeros(E), habit_n=np.zeros(E, dtype=np.int64),
                     plan_n=np.zeros(E, dtype=np.int64))
 
     @classmethod
-    def fresh(cls, E: int, device: torch.device) -> "EpisodeState":
-        return cls(**cls.fresh_fields(E, device))
+    def fresh(cls, E: int, device: torch.device, state_dim: int = 6) -> "EpisodeState":
+        return cls(**cls.fresh_fields(E, device, state_dim))
 
     def reset(self, mask: np.ndarray, seen: torch.Tensor) -> None:
         """Start a new episode for the members in ``mask`` from the ``seen`` state ``[E, 6]``."""
@@ -165,7 +174,7 @@ def estimate_error(info: StepInfo) -> np.ndarray:
     """``[E]`` the integrator's error after the step: mean over hand, elbow and target of the distance
     between the estimate and the truth (MuJoCo's sites) (cm)."""
     truth = np.concatenate([info.true_arm, info.target], axis=1)
-    return np.linalg.norm((info.next_state - truth).reshape(-1, 3, 2), axis=-1).mean(-1)
+    return np.linalg.norm((info.next_state[:, :6] - truth).reshape(-1, 3, 2), axis=-1).mean(-1)
 
 
 def select_action(agent: Policy, arbitrator: Arbitrator, ctx: ArbitrationContext, active: np.ndarray,
@@ -186,7 +195,8 @@ def select_action(agent: Policy, arbitrator: Arbitrator, ctx: ArbitrationContext
     if explore:
         sigma = agent.cfg.ou_sigma_at(ctx.episode.numpy())
         proposal = proposal + agent.noise.sample(torch.as_tensor(active), sigma).to(state.device)
-    return proposal.clamp(-ACTION_BOUND, ACTION_BOUND), Decision(habit, dict(decision[1]))
+    bound = agent.sizes.action_bound
+    return proposal.clamp(-bound, bound), Decision(habit, dict(decision[1]))
 
 
 def decision_inputs(decision: Decision) -> dict[str, np.ndarray]:
@@ -253,8 +263,8 @@ class EpisodeLoop:
         """New episodes for the members in ``mask``: reset their environment and carried state."""
         obs = self.env.reset(mask)
         seen = observed_state(obs, st.state.device)
-        st.reset(mask, seen)
         self.integrator.reset(np.asarray(mask, dtype=bool), seen)
+        st.reset(mask, with_extra(seen, self.env))
         if reset_noise:
             self.agent.noise.reset(torch.as_tensor(mask))
         for hook in self.hooks:
@@ -285,7 +295,7 @@ class EpisodeLoop:
 
     def begin(self, members: np.ndarray) -> EpisodeState:
         """A frozen episode's start for ``members``: a fresh carry, their environments reset (noise untouched)."""
-        st = EpisodeState.fresh(self.env.E, self.agent.device)
+        st = EpisodeState.fresh(self.env.E, self.agent.device, 6 + self.env.extra.shape[1])
         self.start(st, members, reset_noise=False)
         return st
 
@@ -337,9 +347,16 @@ def agent_step(agent: Policy, vec_env: VecEnv, integrator: Integrator, state: to
     obs = vec_env.step(action.detach().cpu().double().numpy(), active)
     vision = torch.as_tensor(obs.vision, device=device)
     seen = observed_state(obs, device)
-    next_state = integrator.update(state, predicted, seen, vision, torch.as_tensor(active, device=device))
+    active_t = torch.as_tensor(active, device=device)
+    if vec_env.extra.shape[1]:  # the integrator estimates the positions; the extra observations (proprioception)
+        # are read as they are, every step
+        positions = integrator.update(state[:, :6], predicted, seen, vision, active_t)
+        kept = torch.cat([positions, state[:, 6:]], 1)
+        next_state = torch.where(active_t[:, None], with_extra(positions, vec_env), kept)
+    else:
+        next_state = integrator.update(state, predicted, seen, vision, active_t)
     radius = vec_env.spec.zone_radius if zone_radius is None else zone_radius
-    est_distance = torch.linalg.vector_norm(next_state[:, :2] - next_state[:, 4:], dim=1)
+    est_distance = torch.linalg.vector_norm(next_state[:, :2] - next_state[:, 4:6], dim=1)
     reward = torch.where(vision, torch.as_tensor(obs.reward, dtype=torch.float32, device=device), -est_distance)
     terminal = torch.where(vision, torch.as_tensor(obs.reached, device=device), est_distance <= radius)
     delta = agent.td_error(state, executable, reward, next_state, terminal.float())

@@ -41,7 +41,7 @@ import numpy as np
 import pandas as pd
 
 from apac_mj.config import TrainConfig, migrate, to_dict, train_config_from_dict
-from apac_mj.kinematics import Geometry
+from apac_mj.kinematics import Geometry, Sizes
 from apac_mj.kinds import check as check_kind
 from apac_mj.run import checkpoint
 from apac_mj.suite import spec_for
@@ -142,7 +142,10 @@ def validate(cfg: TrainConfig) -> None:
     if cfg.actuation not in ("servo", "kinematic"):
         raise ValueError(f"actuation must be 'servo' or 'kinematic', got {cfg.actuation!r}")
     check_kind(cfg.agent)  # an unknown kind: an error listing the registered ones
-    spec_for(cfg)  # unknown task -> KeyError listing the known ones; bad override -> TaskSpecError
+    spec = spec_for(cfg)  # unknown task -> KeyError listing the known ones; bad override -> TaskSpecError
+    if spec.plant.dynamic and cfg.actuation != "servo":
+        raise ValueError(f"task {cfg.task!r} has a {spec.plant.actuation} plant ([plant]); actuation "
+                         f"{cfg.actuation!r} would write the joint angles and skip its dynamics: use 'servo'")
     _check_memory(cfg)
 
 
@@ -184,12 +187,25 @@ def check_device(device: str) -> None:
 def training_env(cfg: TrainConfig) -> VecEnv:
     """The run's environments as training builds them: changing kinematics start after
     ``growth_start_episode`` *training* episodes, so the environment's threshold (which counts every
-    reset) is shifted by the babbling count here, and only here."""
+    reset) is shifted by the babbling count here, and only here; so is the plant's schedule (load change,
+    force field on and off)."""
     from apac_mj.suite.vec_env import VecEnv  # the plant loads when a run is built, not when one is read
 
-    growth = spec_for(cfg).growth_start_episode + cfg.agent.babbling_episodes
-    return VecEnv(cfg.task, list(cfg.seeds), cfg.actuation,
-                  overrides={**cfg.task_overrides, "growth_start_episode": growth})
+    spec, babbling = spec_for(cfg), cfg.agent.babbling_episodes
+    overrides = {**cfg.task_overrides, "growth_start_episode": spec.growth_start_episode + babbling}
+    if spec.plant.dynamic:  # the plant's schedule (load change, field on/off) counts training episodes too
+        overrides["plant"] = spec.plant.shifted(babbling)
+    return VecEnv(cfg.task, list(cfg.seeds), cfg.actuation, overrides=overrides)
+
+
+def task_sizes(cfg: TrainConfig) -> Sizes:
+    """The agent's sizes (state and action dimensions, action bound) from the dm_env specs of the run's task
+    (one environment is built to read them)."""
+    from apac_mj import suite  # the plant loads when a run is built, not when one is read
+
+    env = suite.load("planar_arm", cfg.task, task_kwargs={"random": 0, "actuation": cfg.actuation,
+                                                          **cfg.task_overrides})
+    return Sizes.from_specs(env.observation_spec(), env.action_spec())
 
 
 def load_run(run_dir: str | Path, device: str | None = None,
@@ -205,7 +221,7 @@ def load_run(run_dir: str | Path, device: str | None = None,
     ckpt = run.load_checkpoint(required=NETWORK_KEYS)
     run.check_config(ckpt)  # config.json says what the checkpoint trained (an edited one: an error naming it)
     agent = Agent(cfg.agent, list(cfg.seeds), device=device, precision=precision or cfg.precision,
-                  geometry=Geometry.from_spec(spec_for(cfg)))
+                  geometry=Geometry.from_spec(spec_for(cfg)), sizes=task_sizes(cfg))
     agent.load_state_dict(ckpt.agent)
     return cfg, agent, ckpt
 

@@ -54,12 +54,12 @@ from tqdm.auto import tqdm
 
 from apac_mj.agent import precision as precisions
 from apac_mj.agent.agent import Agent
-from apac_mj.config import TrainConfig
+from apac_mj.config import AgentConfig, TrainConfig
 from apac_mj.kinds import arbitrator_for
 from apac_mj.kinematics import Geometry
 from apac_mj.run.rollout import EpisodeLoop, EpisodeState, Hook, OnEpisodeStart, OnStep, as_hooks
 from apac_mj.run.checkpoint import CheckpointError
-from apac_mj.run.run_dir import RunCheckpoint, RunDir, RunMismatch, diff, say, training_env, validate
+from apac_mj.run.run_dir import RunCheckpoint, RunDir, RunMismatch, diff, say, task_sizes, training_env, validate
 from apac_mj.suite import spec_for
 from apac_mj.types import StepInfo
 
@@ -94,9 +94,9 @@ class LoopState(EpisodeState):
         self.loss_n = np.zeros(E, dtype=np.int64) if self.loss_n is None else self.loss_n
 
     @classmethod
-    def fresh(cls, E: int, babbling: int, device: torch.device) -> "LoopState":
+    def fresh(cls, E: int, babbling: int, device: torch.device, state_dim: int = 6) -> "LoopState":
         return cls(episode=np.full(E, -babbling, dtype=np.int64), need_reset=np.ones(E, dtype=bool),
-                   **EpisodeState.fresh_fields(E, device))
+                   **EpisodeState.fresh_fields(E, device, state_dim))
 
     def state_dict(self) -> dict[str, Any]:
         d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
@@ -142,10 +142,11 @@ def _train(cfg: TrainConfig, run: RunDir, progress: bool, hooks: Sequence[Hook],
     seeds = list(cfg.seeds)
     env = training_env(cfg)
     agent = Agent(cfg.agent, seeds, device=cfg.device, precision=cfg.precision,
-                  geometry=Geometry.from_spec(spec_for(cfg)))
+                  geometry=Geometry.from_spec(spec_for(cfg)), sizes=task_sizes(cfg))
     babble_gens = babbling_generators(seeds)
     episodes = EpisodeLoop(agent, arbitrator_for(cfg.agent), env, hooks=as_hooks(hooks, on_step, on_episode_start))
-    loop, rows, saved_at = LoopState.fresh(len(seeds), cfg.agent.babbling_episodes, agent.device), [], None
+    loop, rows, saved_at = LoopState.fresh(len(seeds), cfg.agent.babbling_episodes, agent.device,
+                                           agent.state_dim), [], None
     if run.checkpoint_files():
         loop, rows = _restore(run, config, episodes, babble_gens)
         saved_at = loop.slowest()
@@ -254,12 +255,15 @@ def _step(cfg: TrainConfig, loop: LoopState, active: np.ndarray, episodes: Episo
     """Act (arbitrated, or random while babbling), step, store, update once; advance the loop state."""
     agent, env = episodes.agent, episodes.env
     babbling = active & (loop.episode < 0)
-    override = (lambda a, h: _babbling_action(cfg, a, h, babbling, babble_gens)) if babbling.any() else None
+    override = (lambda a, h: _babbling_action(agent.cfg, a, h, babbling, babble_gens)) if babbling.any() else None
     angles_before = env.joint_angles()
     info = episodes.act(loop, active, loop.episode, explore=True, override=override)
     s, s2, r, done = _transition(info, babbling)
     dev = agent.device
-    executed = torch.as_tensor(info.joint_angles - angles_before, dtype=torch.float32, device=dev)
+    if agent.sizes.angle_actions:
+        executed = torch.as_tensor(info.joint_angles - angles_before, dtype=torch.float32, device=dev)
+    else:  # torques: the plant applies the command as it is (select_action bounds it)
+        executed = torch.as_tensor(info.action, dtype=torch.float32, device=dev)
     learned = executed if cfg.agent.critic_action == "executed" else torch.as_tensor(info.action, device=dev)
     agent.replay.add(torch.as_tensor(s, device=dev), learned, torch.as_tensor(r, device=dev),
                      torch.as_tensor(s2, device=dev), torch.as_tensor(done, device=dev), torch.as_tensor(active),
@@ -274,11 +278,13 @@ def _step(cfg: TrainConfig, loop: LoopState, active: np.ndarray, episodes: Episo
     return info
 
 
-def _babbling_action(cfg: TrainConfig, action: torch.Tensor, habit: torch.Tensor, babbling: np.ndarray,
+def _babbling_action(cfg: AgentConfig, action: torch.Tensor, habit: torch.Tensor, babbling: np.ndarray,
                      gens: list[torch.Generator]) -> tuple[torch.Tensor, torch.Tensor]:
-    scale = cfg.agent.babbling_scale
+    """Uniform actions in ``±cfg.babbling_scale`` (the agent's config: in the task's action units)."""
+    scale = cfg.babbling_scale
     members = np.flatnonzero(babbling)
-    draws = torch.stack([(torch.rand(2, generator=gens[k]) * 2 - 1) * scale for k in members])  # on the CPU
+    draws = torch.stack([(torch.rand(action.shape[1], generator=gens[k]) * 2 - 1) * scale
+                         for k in members])  # on the CPU
     action = action.clone()
     action[torch.as_tensor(members, device=action.device)] = draws.to(action.device)  # one transfer for all
     return action, habit & ~torch.as_tensor(babbling, device=habit.device)
@@ -294,7 +300,7 @@ def _transition(info: StepInfo, babbling: np.ndarray) -> tuple[np.ndarray, np.nd
     b = babbling
     if b.any():
         reached_end = info.true_arm[b, :2]
-        s[b, 4:], s2[b, :4], s2[b, 4:] = reached_end, info.true_arm[b], reached_end
+        s[b, 4:6], s2[b, :4], s2[b, 4:6] = reached_end, info.true_arm[b], reached_end
         r[b], done[b] = 0.0, 1.0
     return s, s2, r, done
 

@@ -12,9 +12,11 @@ Each environment wraps the task's dm_control environment (:func:`apac_mj.suite.l
 * observation: the agent's 6-D state ``[end_x, end_y, elbow_x, elbow_y, target_x, target_y]``
   in cm (float32; unbounded, as the links grow without limit under changing kinematics). Under occluded vision it is seen at the first step only and reads zero
   afterwards, as in the suite (intermittent vision: zero on the unseen steps; noisy vision: the
-  noisy positions); ``info["vision"]`` says which.
+  noisy positions); ``info["vision"]`` says which. A task that observes the joint velocities
+  (``[plant] observe_velocities``) appends them (deg/s): 8-D.
 * action: the change of the (shoulder, elbow) joint angles in degrees, in ``[-180, 180]``;
-  the plant clamps angles at the joint limits.
+  the plant clamps angles at the joint limits. A torque-driven task (``[plant] actuation = "torque"``):
+  the joint torques in N·m, in ``[-max_torque, max_torque]``.
 * reward: minus the distance to the target (cm).
 * ``terminated``: the end effector is inside the target zone; ``truncated``: the task's step
   limit (30 steps) was hit. The environment applies its own limit, so no ``TimeLimit`` wrapper.
@@ -38,7 +40,7 @@ except ImportError as e:  # pragma: no cover - depends on the installation
                       "(or pip install gymnasium==1.3.0)") from e
 
 from apac_mj import suite
-from apac_mj.suite.planar_arm import ACTION_BOUND
+from apac_mj.suite.planar_arm import action_bound
 
 #: The namespace of the registered ids: ``apac_mj/<task>-v0``.
 NAMESPACE = "apac_mj"
@@ -61,8 +63,11 @@ class PlanarArmEnv(gymnasium.Env):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.task_name, self.actuation, self.render_mode = task_name, actuation, render_mode
         self.task_spec = suite.load_spec(task_name)  # unknown task -> KeyError listing the known ones
-        self.observation_space = spaces.Box(-np.inf, np.inf, shape=(6,), dtype=np.float32)
-        self.action_space = spaces.Box(-ACTION_BOUND, ACTION_BOUND, shape=(2,), dtype=np.float32)
+        # a task that observes joint velocities (its [plant]) has 8; one driven by torques, their bound
+        dims = 8 if self.task_spec.plant.observe_velocities else 6
+        self.observation_space = spaces.Box(-np.inf, np.inf, shape=(dims,), dtype=np.float32)
+        bound = action_bound(self.task_spec)
+        self.action_space = spaces.Box(-bound, bound, shape=(2,), dtype=np.float32)
         self._env: Any = None
         self._renderer: Any = None
 
@@ -108,7 +113,8 @@ class PlanarArmEnv(gymnasium.Env):
 
 
 def _observation(obs: dict[str, np.ndarray]) -> np.ndarray:
-    return np.concatenate([obs["end_effector"], obs["elbow"], obs["target"]]).astype(np.float32)
+    extra = [obs["joint_velocities"]] if "joint_velocities" in obs else []
+    return np.concatenate([obs["end_effector"], obs["elbow"], obs["target"], *extra]).astype(np.float32)
 
 
 def register_all() -> list[str]:

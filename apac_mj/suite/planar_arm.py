@@ -18,7 +18,7 @@ from dm_env import specs
 
 from apac_mj.util import paths
 from apac_mj.kinematics import motion_function
-from apac_mj.suite.task_spec import START_ANGLES, TaskSpec
+from apac_mj.suite.task_spec import START_ANGLES, PlantSpec, TaskSpec, STANDARD_GRAVITY
 
 #: Physics sub-steps per environment step under servo actuation. With the
 #: servo gains in the MJCF (kp = 1e4, kv = 200, rotor armature 1, 10 ms
@@ -34,6 +34,17 @@ JOINT_RANGE = (0.0, 180.0)
 #: Bound of each action component (change of a joint angle), degrees.
 ACTION_BOUND = 180.0
 ACTUATIONS = ("servo", "kinematic")
+
+# MuJoCo's units for this model are cm, kg and s: these convert the plant's SI values (PlantSpec).
+_SITE = mujoco.mjtObj.mjOBJ_SITE
+#: N·m -> kg·cm^2/s^2 (torque, and stiffness per rad, damping per rad/s).
+TORQUE_UNIT = 1e4
+#: N -> kg·cm/s^2.
+FORCE_UNIT = 100.0
+#: kg·m^2 -> kg·cm^2.
+INERTIA_UNIT = 1e4
+#: m -> cm.
+LENGTH_UNIT = 100.0
 
 
 class _Ids:
@@ -79,11 +90,21 @@ class Physics(engine.Physics):
     # Plane bounds and the joints' range (degrees), set by the task that owns this physics.
     plane_size: tuple[float, float] = (30.0, 30.0)
     joint_range: tuple[float, float] = JOINT_RANGE
+    #: The arm's dynamics (:meth:`set_plant`); None: the paper's ideal arm as the MJCF has it.
+    plant: PlantSpec | None = None
+    #: Point load in the hand (kg) and the curl field's b (N·s/m) now (dynamic plants only).
+    load: float = 0.0
+    field_b: float = 0.0
 
     def _reload_from_data(self, data) -> None:
         # Set before the base class runs after_reset(), and again on every copy/reload.
         self._m, self._d = data.model.ptr, data.ptr
         self.ids = _Ids(self._m)
+        # views the force field reads and writes every sub-step
+        self._vel6 = np.zeros(6)
+        self._hand_x = self._d.site_xpos[self.ids.end_site]
+        self._fore_com = self._d.xipos[self.ids.fore_body]
+        self._fore_xfrc = self._d.xfrc_applied[self.ids.fore_body]
         super()._reload_from_data(data)
 
     def end_effector(self) -> np.ndarray:
@@ -132,7 +153,7 @@ class Physics(engine.Physics):
         ids = self.ids
         self._d.qpos[ids.qpos] = q
         self._d.qvel[ids.qvel] = 0.0
-        self._d.ctrl[ids.ctrl] = q
+        self._d.ctrl[ids.ctrl] = 0.0 if self.plant is not None and self.plant.actuation == "torque" else q
         mujoco.mj_forward(self._m, self._d)  # positions only: no step, so no instability to check
 
     def set_joint_limits(self, limited: bool, joint_range: tuple[float, float] = JOINT_RANGE) -> None:
@@ -142,6 +163,10 @@ class Physics(engine.Physics):
         self._m.jnt_limited[self.ids.joints] = 1 if limited else 0
         if self.joint_range != JOINT_RANGE:
             self._m.jnt_range[self.ids.joints] = np.deg2rad(np.asarray(self.joint_range, dtype=np.float64))
+
+    def set_torques(self, torques_nm) -> None:
+        """Command these (shoulder, elbow) joint torques in N·m (torque actuation)."""
+        self._d.ctrl[self.ids.ctrl] = np.asarray(torques_nm, dtype=np.float64)
 
     def set_servo_setpoint(self, angles_deg) -> None:
         """Command the position servos to these (shoulder, elbow) angles in degrees."""
@@ -170,7 +195,136 @@ class Physics(engine.Physics):
             m.geom_size[geom, 1] = length / 2.0
             m.geom_rbound[geom] = length / 2.0 + radius
             m.geom_aabb[geom, 5] = length / 2.0 + radius
+        if self.plant is not None:
+            self._apply_masses()
         self.forward()
+
+    # -- dynamics (PlantSpec): none of this runs for the paper's ideal arm -----------------------------------
+    def set_plant(self, plant: PlantSpec) -> None:
+        """Give the arm ``plant``'s dynamics (compliant or torque actuation, masses, damping, gravity).
+
+        Edits the compiled model in place: integration time step, rotor armature 0, the actuators' gain and
+        bias (compliant: kp = stiffness, kv = damping; torque: ctrl is the joint torque in N·m), passive joint
+        damping, gravity along -y, link masses and inertias (:meth:`_apply_masses`), MuJoCo's energy
+        computation on. The ideal plant needs none of it (the MJCF is that plant).
+        """
+        if not plant.dynamic:
+            raise ValueError("set_plant needs a plant with dynamics ('compliant' or 'torque'); the MJCF is the "
+                             "ideal one")
+        m, ids = self._m, self.ids
+        self.plant, self.load, self.field_b = plant, plant.load, 0.0
+        m.opt.timestep = plant.timestep
+        m.opt.gravity[:] = (0.0, -STANDARD_GRAVITY * LENGTH_UNIT if plant.gravity else 0.0, 0.0)
+        m.opt.enableflags |= int(mujoco.mjtEnableBit.mjENBL_ENERGY)
+        m.dof_armature[ids.qvel] = 0.0
+        m.dof_damping[ids.qvel] = np.asarray(plant.joint_damping) * TORQUE_UNIT
+        for k, a in enumerate(ids.ctrl):
+            m.actuator_gainprm[a, :3] = 0.0
+            m.actuator_biasprm[a, :3] = 0.0
+            if plant.actuation == "compliant":
+                kp, kv = plant.stiffness[k] * TORQUE_UNIT, plant.damping[k] * TORQUE_UNIT
+                m.actuator_gainprm[a, 0] = kp
+                m.actuator_biasprm[a, 1:3] = (-kp, -kv)
+            else:  # torque: ctrl in N·m
+                m.actuator_gainprm[a, 0] = TORQUE_UNIT
+        # The capsules follow their geom frame, not the centre of mass a hand load moves.
+        m.geom_sameframe[[ids.upper_geom, ids.fore_geom]] = 0
+        self._apply_masses()
+        mujoco.mj_setConst(m, self._d)
+        self.set_field(0.0)
+
+    def set_load(self, kg: float) -> None:
+        """Hold a point load of ``kg`` in the hand (dynamic plants); call between episodes."""
+        if self.plant is None:
+            raise ValueError("a hand load needs a plant with dynamics (set_plant)")
+        if not math.isfinite(kg) or kg < 0:
+            raise ValueError(f"hand load must be a finite number >= 0 (kg), got {kg!r}")
+        if kg != self.load:
+            self.load = float(kg)
+            self._apply_masses()
+            mujoco.mj_setConst(self._m, self._d)
+
+    def set_field(self, b: float) -> None:
+        """Curl field F = B v, B = [[0, b], [-b, 0]] (N·s/m) at the hand from the next sub-step; 0: off."""
+        if not math.isfinite(b):
+            raise ValueError(f"field strength b must be finite (N·s/m), got {b!r}")
+        if b != 0.0 and self.plant is None:
+            raise ValueError("a force field needs a plant with dynamics (set_plant)")
+        self.field_b = float(b)
+        self._d.xfrc_applied[self.ids.fore_body] = 0.0
+
+    def _apply_masses(self) -> None:
+        """Link masses and inertias of uniform rods (or the plant's stated inertias) at the current lengths,
+        with the hand load as a point mass at the forearm's end (its centre of mass moves towards the hand)."""
+        m, ids, plant = self._m, self.ids, self.plant
+        for body, geom, k in ((ids.upper_body, ids.upper_geom, 0), (ids.fore_body, ids.fore_geom, 1)):
+            length = m.body_pos[ids.fore_body, 0] if k == 0 else m.site_pos[ids.end_site, 0]
+            mass, radius = plant.link_masses[k], m.geom_size[geom, 0]
+            rod = plant.link_inertias[k] * INERTIA_UNIT or mass * length ** 2 / 12.0
+            load = self.load if k == 1 else 0.0
+            total = mass + load
+            com = (mass * length / 2.0 + load * length) / total
+            perp = rod + mass * (length / 2.0 - com) ** 2 + load * (length - com) ** 2
+            m.body_mass[body] = total
+            m.body_ipos[body] = (com, 0.0, 0.0)
+            # principal axes as compiled (body_iquat): the rod's axis is the third
+            m.body_inertia[body] = (perp, perp, mass * radius ** 2 / 2.0)
+
+    def step(self, nstep: int = 1) -> None:
+        """dm_control's step; with a force field on, the field's force is set before every sub-step from the
+        hand's velocity then (mj_step1 / field / mj_step2, MuJoCo's scheme for state-dependent inputs)."""
+        if self.field_b == 0.0:
+            return super().step(nstep)
+        m, d = self._m, self._d
+        with self.check_invalid_state():
+            for _ in range(nstep):
+                mujoco.mj_step1(m, d)
+                self._apply_field()
+                mujoco.mj_step2(m, d)
+            mujoco.mj_step1(m, d)
+
+    def _apply_field(self) -> None:
+        """xfrc_applied on the forearm: the field's force at the hand, as a force and torque at the centre of
+        mass (MuJoCo applies xfrc_applied there). Scalar arithmetic on cached views: this runs every sub-step."""
+        v, hand, com, b = self._vel6, self._hand_x, self._fore_com, self.field_b
+        mujoco.mj_objectVelocity(self._m, self._d, _SITE, self.ids.end_site, v, 0)
+        fx, fy = b * v[4], -b * v[3]  # F = B v, B = [[0, b], [-b, 0]]; N·s/m = kg/s in cm units too
+        ax, ay, az = hand[0] - com[0], hand[1] - com[1], hand[2] - com[2]
+        self._fore_xfrc[:] = (fx, fy, 0.0, -az * fy, az * fx, ax * fy - ay * fx)  # force; arm x force
+
+    def hand_velocity(self) -> np.ndarray:
+        """The hand's (x, y) velocity in cm/s."""
+        res = np.zeros(6)
+        mujoco.mj_objectVelocity(self._m, self._d, _SITE, self.ids.end_site, res, 0)
+        return res[3:5]
+
+    def field_force_model(self) -> np.ndarray:
+        """The field's force at the hand now, (x, y) in MuJoCo's units (kg·cm/s^2): F = B v."""
+        vx, vy = self.hand_velocity()
+        return np.array([self.field_b * vy, -self.field_b * vx])
+
+    def field_force(self) -> np.ndarray:
+        """The curl field's force at the hand now, (x, y) in N (zeros when off)."""
+        if self.field_b == 0.0:
+            return np.zeros(2)
+        return self.field_force_model() / FORCE_UNIT
+
+    def joint_velocities(self) -> np.ndarray:
+        """(shoulder, elbow) angular velocities in deg/s."""
+        return self._d.qvel[self.ids.qvel] * (180.0 / np.pi)
+
+    def servo_setpoint(self) -> np.ndarray:
+        """The servos' commanded (shoulder, elbow) angles in degrees (torque actuation: the torques, N·m)."""
+        ctrl = self._d.ctrl[self.ids.ctrl]
+        if self.plant is not None and self.plant.actuation == "torque":
+            return ctrl.copy()
+        return ctrl * (180.0 / np.pi)
+
+    def energy(self) -> tuple[float, float]:
+        """(potential, kinetic) energy in J, as MuJoCo computes it (dynamic plants: mjENBL_ENERGY is on)."""
+        mujoco.mj_energyPos(self._m, self._d)
+        mujoco.mj_energyVel(self._m, self._d)
+        return float(self._d.energy[0] / TORQUE_UNIT), float(self._d.energy[1] / TORQUE_UNIT)
 
     def set_target(self, xy) -> None:
         """Move the target (and its zone) to ``xy``, which must lie on the plane."""
@@ -272,10 +426,18 @@ class Reach(base.Task):
             self._lengths = np.array(self.spec.link_lengths, dtype=np.float64)
         physics.set_link_lengths(*self._lengths)
         physics.set_joint_limits(self.spec.at_limit == "clip", self.spec.joint_range)
+        self.apply_episode_plant(physics)
         physics.set_joint_angles(*START_ANGLES)
         physics.set_target(self._episode_target())
         physics.forward()
         self._draw_view(first=True)
+
+    def apply_episode_plant(self, physics: Physics) -> None:
+        """This episode's hand load and force field (the ``[plant]`` schedule); nothing for the ideal arm."""
+        plant = self.spec.plant
+        if plant.dynamic:
+            physics.set_load(plant.load_at(self.episode))
+            physics.set_field(plant.field_at(self.episode))
 
     def _draw_view(self, first: bool) -> None:
         """Draw this step's view (seen flag, noise) once; :meth:`get_observation` reads it."""
@@ -319,13 +481,19 @@ class Reach(base.Task):
         )
 
     def action_spec(self, physics: Physics) -> specs.BoundedArray:
-        return specs.BoundedArray((2,), np.float64, -ACTION_BOUND, ACTION_BOUND, name="joint_angle_change_deg")
+        bound = action_bound(self.spec)
+        name = "joint_torque_Nm" if self.spec.plant.actuation == "torque" else "joint_angle_change_deg"
+        return specs.BoundedArray((2,), np.float64, -bound, bound, name=name)
 
     def before_step(self, action, physics: Physics) -> None:
         action = validate_action(action)
         if self.growing:
             self._lengths = self._lengths + self.spec.growth_per_step
             physics.set_link_lengths(*self._lengths)
+        if self.spec.plant.actuation == "torque":
+            bound = self.spec.plant.max_torque
+            physics.set_torques(np.minimum(np.maximum(action, -bound), bound))
+            return
         change = np.minimum(np.maximum(action, -ACTION_BOUND), ACTION_BOUND)
         setpoint = physics.joint_angles() + change
         if self.spec.at_limit == "clip":
@@ -350,6 +518,8 @@ class Reach(base.Task):
             for i, name in enumerate(("end_effector", "elbow", "target")):
                 obs[name] += noise[2 * i:2 * i + 2]
         obs["vision"] = np.array([1.0 if seen else 0.0])
+        if self.spec.plant.observe_velocities:  # proprioception: felt whether the arm is seen or not
+            obs["joint_velocities"] = physics.joint_velocities()
         return obs
 
     def get_reward(self, physics: Physics) -> float:
@@ -400,9 +570,20 @@ def make_physics() -> Physics:
     return Physics.from_xml_path(str(paths.arm_xml_path()))
 
 
+def action_bound(spec: TaskSpec) -> float:
+    """Bound of each action component: degrees of joint-angle change, or N·m under torque actuation."""
+    return spec.plant.max_torque if spec.plant.actuation == "torque" else ACTION_BOUND
+
+
 def make_environment(spec: TaskSpec, actuation: str = "servo", random=None, **environment_kwargs) -> control.Environment:
     physics = make_physics()
     physics.plane_size = spec.plane_size
     task = Reach(spec, actuation=actuation, random=random)
+    if spec.plant.dynamic:
+        if actuation != "servo":
+            raise ValueError(f"task {spec.name!r} has a {spec.plant.actuation} plant ([plant]); actuation "
+                             f"{actuation!r} would write the joint angles and skip its dynamics: use 'servo'")
+        physics.set_plant(spec.plant)
+        environment_kwargs.setdefault("n_sub_steps", spec.plant.sub_steps)
     environment_kwargs.setdefault("n_sub_steps", N_SUB_STEPS if actuation == "servo" else KINEMATIC_SUB_STEPS)
     return control.Environment(physics, task, **environment_kwargs)

@@ -25,6 +25,8 @@ from apac_mj import suite
 from apac_mj.suite.task_spec import TaskSpec
 from apac_mj.types import Observation
 
+#: The observations every task has: the paper's positions and the vision flag.
+_PAPER_OBSERVATIONS = ("end_effector", "elbow", "target", "vision")
 #: The MuJoCo state captured for an exact resume.
 _SIG = int(mujoco.mjtState.mjSTATE_INTEGRATION)
 
@@ -45,6 +47,12 @@ class VecEnv:
                                                                  **self.overrides}) for s in seeds]
         self.E = len(seeds)
         self.spec: TaskSpec = self.envs[0].task.spec
+        #: Names of the observed arrays beyond the paper's positions and vision flag (e.g. joint_velocities),
+        #: in the observation's order, and their latest values ``[E, n]`` (read like ``obs``; not part of
+        #: :meth:`get_state`: a step or reset writes them before they are read).
+        spec = self.envs[0].observation_spec()
+        self.extra_names = [k for k in spec if k not in _PAPER_OBSERVATIONS]
+        self.extra = np.zeros((self.E, sum(int(np.prod(spec[k].shape)) for k in self.extra_names)))
         self.obs = Observation(arm=np.zeros((self.E, 4)), target=np.zeros((self.E, 2)),
                                vision=np.zeros(self.E, dtype=bool), reward=np.zeros(self.E),
                                last=np.zeros(self.E, dtype=bool), reached=np.zeros(self.E, dtype=bool))
@@ -64,6 +72,8 @@ class VecEnv:
         self.obs.reward[k] = 0.0 if ts.reward is None else ts.reward
         self.obs.last[k] = ts.last()
         self.obs.reached[k] = ts.last() and ts.discount == 0.0
+        if self.extra_names:
+            self.extra[k] = np.concatenate([np.ravel(o[name]) for name in self.extra_names])
 
     def reset(self, mask: Sequence[bool] | np.ndarray | None = None) -> Observation:
         """Start a new episode for the members in ``mask`` (all if None)."""
@@ -177,6 +187,7 @@ def _set_member_state(env, s: dict[str, Any]) -> None:
     p.set_origin(s["origin"].numpy())
     p.set_zone_radius(float(s["zone_radius"]))
     p.set_joint_limits(task.spec.at_limit == "clip", task.spec.joint_range)
+    task.apply_episode_plant(p)
     p.set_link_lengths(*(float(v) for v in s["link_lengths"]))
     p.set_target(s["target"].numpy())
     p.set_state(s["mj_state"].numpy(), sig=_SIG)
