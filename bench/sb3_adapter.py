@@ -116,11 +116,12 @@ def run_one(algo: str, setting: str, task: str, seed: int, episodes: int, action
     steps = episodes * env.unwrapped.task_spec.steps_per_episode
     model.learn(total_timesteps=steps, callback=StopTrainingOnMaxEpisodes(max_episodes=episodes))
     seconds = time.perf_counter() - start
+    trained, last_success, last_noop = len(env.success), env.success[-LAST:], env.noop[-LAST:]
     success, distance = frozen_test(model, env)
     return {"algo": algo, "setting": setting, "task": task, "seed": seed, "action": action,
-            "observation": observation, "episodes": len(env.success),
-            "train_success_last50": float(np.mean(env.success[-LAST:])),
-            "noop_share_last50": float(np.mean(env.noop[-LAST:])), "test_success": success,
+            "observation": observation, "episodes": trained,
+            "train_success_last50": float(np.mean(last_success)),
+            "noop_share_last50": float(np.mean(last_noop)), "test_success": success,
             "test_final_distance_cm": distance, "steps": int(model.num_timesteps), "seconds": round(seconds, 1)}
 
 
