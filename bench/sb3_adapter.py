@@ -44,8 +44,9 @@ FIELDS = ("algo", "setting", "task", "seed", "action", "observation", "episodes"
 class EpisodeLog(gym.Wrapper):
     """Records each finished episode's success (terminated) and the share of its commands that moved nothing."""
 
-    def __init__(self, env: gym.Env) -> None:
+    def __init__(self, env: gym.Env, tag: str = "") -> None:
         super().__init__(env)
+        self.tag, self.start = tag, time.perf_counter()
         self.success: list[bool] = []
         self.noop: list[float] = []
         self._noops: list[bool] = []
@@ -60,6 +61,9 @@ class EpisodeLog(gym.Wrapper):
         if terminated or truncated:
             self.success.append(bool(terminated))
             self.noop.append(float(np.mean(self._noops)))
+            if self.tag and len(self.success) % 50 == 0:
+                print(f"# {self.tag}: episode {len(self.success)}, success over the last 50 "
+                      f"{np.mean(self.success[-LAST:]):.2f}, {time.perf_counter() - self.start:.0f} s", flush=True)
         return obs, reward, terminated, truncated, info
 
 
@@ -109,7 +113,8 @@ def frozen_test(model, env: gym.Env) -> tuple[float, float]:
 def run_one(algo: str, setting: str, task: str, seed: int, episodes: int, action: str, observation: str) -> dict:
     from stable_baselines3.common.callbacks import StopTrainingOnMaxEpisodes
 
-    env = EpisodeLog(gym.make(apac_gym.env_id(task), action=action, observation=observation))
+    env = EpisodeLog(gym.make(apac_gym.env_id(task), action=action, observation=observation),
+                     tag=f"{algo} {setting} {task} seed {seed}")
     env.reset(seed=seed)
     model = make_model(algo, setting, env, seed)
     start = time.perf_counter()

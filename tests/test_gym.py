@@ -152,3 +152,37 @@ def test_occluded_observation_and_seeding():
 def test_unknown_task_names_the_known_ones():
     with pytest.raises(KeyError, match="unknown task"):
         apac_gym.PlanarArmEnv("no_such_task")
+
+
+@pytest.mark.slow
+def test_sb3_td3_learns_commands_that_move_the_arm():
+    """Stable-Baselines3's TD3, trained briefly through the adapter's defaults (normalized action and
+    observation) on the static target: its frozen policy's commands move the arm (the raw ±180° command's
+    failure: parking on the joint limits, every command clamped away) and bring the hand near the target."""
+    sb3 = pytest.importorskip("stable_baselines3")
+    import torch
+    from stable_baselines3.common.noise import NormalActionNoise
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        env = gymnasium.make("apac_mj/static_target-v0", actuation="kinematic")
+        env.reset(seed=0)
+        model = sb3.TD3("MlpPolicy", env, seed=0, device="cpu", learning_starts=100, batch_size=64,
+                        buffer_size=2000, action_noise=NormalActionNoise(np.zeros(2), 0.1 * np.ones(2)),
+                        policy_kwargs={"net_arch": [64, 64]})
+        model.learn(total_timesteps=1500)
+    finally:
+        torch.set_num_threads(threads)
+    moved, final = [], []
+    for _ in range(5):
+        obs, info = env.reset()
+        start = info["distance"]
+        done = False
+        while not done:
+            obs, _, terminated, truncated, info = env.step(model.predict(obs, deterministic=True)[0])
+            moved.append(bool(np.any(np.abs(info["executable"]) > 1e-6)))
+            done = terminated or truncated
+        final.append(info["distance"])
+    assert np.mean(moved) > 0.9, f"{1 - np.mean(moved):.0%} of the policy's commands moved nothing"
+    assert np.mean(final) < 0.5 * start, (final, start)
