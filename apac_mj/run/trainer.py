@@ -177,6 +177,8 @@ def _progress_bar(cfg: TrainConfig, loop: LoopState, rows: list[dict[str, Any]],
 
 def _say_babbling(bar: tqdm, loop: LoopState, babbling: int) -> None:
     """The bar's label while the slowest member is still in motor babbling (before training episode 0)."""
+    if bar.disable:
+        return
     first = int(loop.episode.min())
     label = f"motor babbling: episode {babbling + first + 1} of {babbling}"
     if first < 0 and bar.postfix != label:
