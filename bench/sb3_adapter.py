@@ -140,7 +140,11 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--action", default=apac_gym.ACTIONS[0], choices=apac_gym.ACTIONS)
     p.add_argument("--observation", default=apac_gym.OBSERVATIONS[0], choices=apac_gym.OBSERVATIONS)
     p.add_argument("--out", type=Path, default=None, help="CSV the rows are appended to (finished rows are skipped)")
+    p.add_argument("--markdown", action="store_true", help="print --out's rows as docs/gym.md's table, train nothing")
     args = p.parse_args(argv)
+    if args.markdown:
+        print(markdown(args.out))
+        return
     torch.set_num_threads(1)
     done = set()
     if args.out is not None and args.out.exists():
@@ -164,6 +168,29 @@ def main(argv: list[str] | None = None) -> None:
                             if new:
                                 w.writeheader()
                             w.writerow(row)
+
+
+def markdown(path: Path) -> str:
+    """The CSV's runs as a Markdown table: one row per (task, algo, setting), per-seed values in seed order."""
+    with path.open() as f:
+        rows = list(csv.DictReader(f))
+    groups: dict[tuple, list[dict]] = {}
+    for r in rows:
+        groups.setdefault((r["task"], r["algo"], r["setting"], r["action"], r["observation"]), []).append(r)
+    out = ["| task | agent | setting | seeds | success, last 50 training episodes | commands that moved nothing "
+           "(last 50) | test success (frozen) | test final distance (cm) | steps | s per run |",
+           "|---|---|---|---|---|---|---|---|---|---|"]
+    for (task, algo, setting, action, obs), rs in sorted(groups.items(), key=lambda kv: (kv[0][0] != "static_target",
+                                                                                          kv[0])):
+        rs = sorted(rs, key=lambda r: int(r["seed"]))
+        def col(k: str, fmt: str = "{:.2f}") -> str:
+            return ", ".join(fmt.format(float(r[k])) for r in rs)
+        label = f"SB3 {algo.upper()}" + ("" if (action, obs) == (apac_gym.ACTIONS[0], apac_gym.OBSERVATIONS[0])
+                                         else f" ({action}, {obs})")
+        out.append(f"| {task} | {label} | {setting} | {', '.join(r['seed'] for r in rs)} | {col('train_success_last50')} "
+                   f"| {col('noop_share_last50', '{:.0%}')} | {col('test_success')} | {col('test_final_distance_cm')} "
+                   f"| {col('steps', '{:.0f}')} | {col('seconds', '{:.0f}')} |")
+    return "\n".join(out)
 
 
 if __name__ == "__main__":
