@@ -163,7 +163,8 @@ class TrainConfig:
     episodes: int = 1000
     #: "cpu" or "cuda".
     device: str = "cpu"
-    #: "fp32" (reference) or "bf16" (autocast of the matrix products).
+    #: "fp32" (reference) or "bf16" (autocast of the matrix products); "auto": bf16 where the hardware
+    #: has bf16 dot products, else fp32 (apac_mj.agent.precision), resolved before the run starts.
     precision: str = "fp32"
     #: Save a checkpoint every this many episodes (of the slowest seed).
     checkpoint_every: int = 50

@@ -195,11 +195,13 @@ class Agent:
         weight = torch.zeros(self.E, device=self.device)
         weight[members] = 1.0
         sum(((loss * weight).sum() for loss in losses.values()), torch.zeros((), device=self.device)).backward()
-        on = set(members)
+        on = [False] * self.E
+        for k in members:
+            on[k] = True
         for net, views in self._views.items():
             for p, vs in zip(getattr(self, net).parameters(), views):
-                for k, v in enumerate(vs):
-                    v.grad = p.grad[k] if k in on else None
+                for v, g, k_on in zip(vs, p.grad.unbind(0), on):  # one unbind per parameter, not E indexings
+                    v.grad = g if k_on else None
         return {name: loss.detach().float() for name, loss in losses.items()}
 
     def losses(self, b: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:

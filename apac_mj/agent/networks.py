@@ -19,10 +19,13 @@ from torch import nn
 #: Output-layer init bound (DDPG).
 FINAL_INIT = 3e-3
 
+#: In place: each is applied to a layer's fresh output (which the layer's backward does not need; the
+#: activation's backward reads its own result), so no second ``[E, B, h]`` tensor is allocated per layer.
+#: Same values as ``torch.relu`` etc. (docs/agent.md, "Speed").
 ACTIVATIONS: dict[str, Callable[[torch.Tensor], torch.Tensor]] = {
-    "relu": torch.relu,
-    "sigmoid": torch.sigmoid,
-    "tanh": torch.tanh,
+    "relu": torch.relu_,
+    "sigmoid": torch.sigmoid_,
+    "tanh": torch.tanh_,
 }
 
 
@@ -119,12 +122,12 @@ class EnsembleCritic(nn.Module):
         """``[E,B,S], [E,B,A] -> [E,B]``; ``detach`` keeps gradients out of the critic's weights
         (the actor's loss differentiates Q with respect to the action only)."""
         if self.form == "concat":
-            h = torch.relu(self.l1(torch.cat([state, action], -1), detach))
-            h = torch.relu(self.l2(h, detach))
+            h = torch.relu_(self.l1(torch.cat([state, action], -1), detach))
+            h = torch.relu_(self.l2(h, detach))
         else:
-            zs = self.l2(torch.relu(self.l1(state, detach)), detach)
+            zs = self.l2(torch.relu_(self.l1(state, detach)), detach)
             za = self.l2_action(action, detach)
-            h = torch.relu(zs + za) if self.form == "summed" else torch.relu(torch.cat([zs, za], -1))
+            h = torch.relu_(zs + za) if self.form == "summed" else torch.relu_(torch.cat([zs, za], -1))
         return self.out(h, detach).squeeze(-1)
 
 

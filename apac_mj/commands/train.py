@@ -55,8 +55,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--episodes", type=int, default=d.episodes, help=f"{doc['episodes']} (default {d.episodes})")
     p.add_argument("--out", required=True, help="run directory (created; an existing one is resumed)")
     p.add_argument("--device", default=d.device, help=f"{doc['device']} (default {d.device})")
-    p.add_argument("--precision", choices=("fp32", "bf16"), default=d.precision,
-                   help="fp32 (reference, bit-reproducible on CPU) or bf16 autocast of the matrix products")
+    p.add_argument("--precision", choices=("fp32", "bf16", "auto"), default=d.precision,
+                   help="fp32 (reference, bit-reproducible on CPU), bf16 autocast of the matrix products, or "
+                        "auto: bf16 where the hardware has bf16 dot products (a CPU with avx512_bf16 or amx_bf16, "
+                        "a CUDA GPU with bf16), else fp32; the run says which and why, and config.json records "
+                        "the choice (a resumed run keeps its own)")
     p.add_argument("--checkpoint-every", type=int, default=d.checkpoint_every,
                    help=f"{doc['checkpoint_every']} (default {d.checkpoint_every})")
     p.add_argument("--actuation", choices=("servo", "kinematic"), default=d.actuation,

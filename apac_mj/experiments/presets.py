@@ -230,7 +230,7 @@ def _run(data: dict[str, Any], agent: dict[str, Any], name: str) -> TrainConfig:
             raise PresetError(f"preset {name!r}: {key} must be an int >= 1, got {run[key]!r}")
     if "device" in run:
         _check_subset(name, "device", (str(run["device"]).split(":")[0],), ("cpu", "cuda"))
-    _check_subset(name, "precision", (run.get("precision", "fp32"),), ("fp32", "bf16"))
+    _check_subset(name, "precision", (run.get("precision", "fp32"),), ("fp32", "bf16", "auto"))
     _check_subset(name, "actuation", (run.get("actuation", "servo"),), ("servo", "kinematic"))
     try:
         run["seeds"] = overrides.parse_seeds(run["seeds"])

@@ -21,7 +21,8 @@ import pandas as pd
 from apac_mj.kinematics import motion_function
 from apac_mj.report.labels import (AGENT_COLOR, AGENT_LABEL, agents, arbitrating, condition_colors, condition_label,
                                    condition_order, condition_short, condition_spec, episodes)
-from apac_mj.report.quantities import LATE_FRACTION, judged_reached, time_cost
+from apac_mj.report.quantities import (CROSSING_WINDOW, HABIT_THRESHOLD, LATE_FRACTION, habit_crossing,
+                                      judged_reached, time_cost)
 from apac_mj.report.stats import BOOTSTRAP_SEED, LEVEL
 from apac_mj.suite.task_spec import TaskSpec
 from apac_mj.types import PLANNING_COST
@@ -284,6 +285,7 @@ def fig_arbitration(data: ReportData, path: Path) -> Path:
     sel_all = main[main["agent"].isin(arbitrating_kinds)]
     conds, w = condition_order(sel_all["condition"]), _window(sel_all)
     axes = _axes(max(len(arbitrating_kinds), 1), max(len(conds), 1))
+    crossing = habit_crossing(data.metrics)
     for i, agent in enumerate(arbitrating_kinds):
         for j, cond in enumerate(conds):
             sel = sel_all[(sel_all["agent"] == agent) & (sel_all["condition"] == cond)]
@@ -292,13 +294,29 @@ def fig_arbitration(data: ReportData, path: Path) -> Path:
             title = (condition_label(cond) if len(arbitrating_kinds) == 1
                      else f"{AGENT_LABEL[agent]}, {condition_label(cond)}")
             _style(axes[i, j], title, "training episode", "actions per episode")
+            _mark_crossings(axes[i, j], crossing[(crossing["agent"] == agent) & (crossing["condition"] == cond)])
     if not conds:
         axes[0, 0].text(0.5, 0.5, "no arbitrating agent in these results", ha="center",
                         transform=axes[0, 0].transAxes)
         _style(axes[0, 0], "arbitration", "training episode", "actions per episode")
     names = ", ".join(AGENT_LABEL[a] for a in arbitrating_kinds) or "APAC"
     return _save(axes[0, 0].figure, path, f"Fig. 5: {names} arbitration (moving average over {episodes(w)}; "
-                                          f"bold: mean over seeds, {_band_words(sel_all)})")
+                                          f"bold: mean over seeds, {_band_words(sel_all)}; ticks at the top: "
+                                          f"the episode each seed first had >= {HABIT_THRESHOLD:.0%} habitual "
+                                          f"actions over {CROSSING_WINDOW} episodes; the paper: after ~300)")
+
+
+def _mark_crossings(ax: plt.Axes, crossing: pd.DataFrame) -> None:
+    """Each seed's first crossing of the habit threshold (:func:`habit_crossing`) as a tick at the top of the
+    panel, and in words under the x label: how many seeds crossed, the median episode and the range."""
+    eps = crossing["episode"].dropna().to_numpy()
+    if len(crossing) == 0:
+        return
+    ax.plot(eps, np.ones(len(eps)), "|", transform=ax.get_xaxis_transform(), color="black", ms=12, mew=1.2,
+            clip_on=False)
+    words = (f">= {HABIT_THRESHOLD:.0%} habitual: {len(eps)}/{len(crossing)} seeds"
+             + (f", median ep. {np.median(eps):.0f} ({eps.min():.0f}-{eps.max():.0f})" if len(eps) else ""))
+    ax.set_xlabel(f"{ax.get_xlabel()}\n{words}")
 
 
 def fig_steps_time(data: ReportData, path: Path) -> Path:

@@ -89,6 +89,31 @@ def late(metrics: pd.DataFrame) -> pd.DataFrame:
     return train[train["episode"] >= n - np.ceil(n * LATE_FRACTION)]
 
 
+#: The paper's habit threshold (Fig. 5: "more than 80% of the actions are habitual after around 300 episodes").
+HABIT_THRESHOLD = 0.8
+#: Training episodes in the trailing window a seed's habit share is judged on for the first crossing.
+CROSSING_WINDOW = 20
+
+
+def habit_crossing(metrics: pd.DataFrame, threshold: float = HABIT_THRESHOLD,
+                   window: int = CROSSING_WINDOW) -> pd.DataFrame:
+    """When each seed of an arbitrating kind first became habitual: one row per (agent, condition, seed) of
+    the main study's training with ``episode``, the first training episode at which the habitual share of
+    the actions of the trailing ``window`` episodes (that episode and the ``window - 1`` before it; habit
+    actions / all actions) is at least ``threshold`` (NaN: never), and ``episodes``, the run's length."""
+    train = metrics[(metrics["phase"] == "train") & (metrics["region"] == "all")]
+    train = train[train["agent"].isin(arbitrating(train))].sort_values([*_KEYS, "episode"])
+    rows = []
+    for (agent, condition, seed), d in train.groupby(_KEYS, sort=True):
+        habit = d["habit_actions"].rolling(window, min_periods=window).sum()
+        actions = (d["habit_actions"] + d["planning_actions"]).rolling(window, min_periods=window).sum()
+        crossed = d["episode"][(habit >= threshold * actions) & (actions > 0)]
+        rows.append({"agent": agent, "condition": condition, "seed": seed,
+                     "episode": float(crossed.iloc[0]) if len(crossed) else math.nan,
+                     "episodes": int(d["episode"].max()) + 1})
+    return pd.DataFrame(rows, columns=[*_KEYS, "episode", "episodes"])
+
+
 def judged_reached(occluded: pd.DataFrame) -> pd.Series:
     """Episodes that ended because the forward model's estimate was inside the zone. Results written
     before the ``judged_reached`` column: episodes that ended before their task's step limit."""

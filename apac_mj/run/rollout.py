@@ -190,8 +190,29 @@ def select_action(agent: Policy, arbitrator: Arbitrator, ctx: ArbitrationContext
 
 
 def decision_inputs(decision: Decision) -> dict[str, np.ndarray]:
-    """A decision's inputs (``name -> [E]``) as float numpy arrays."""
-    return {k: torch.as_tensor(v).detach().float().cpu().numpy().copy() for k, v in decision.inputs.items()}
+    """A decision's inputs (``name -> [E]``) as float numpy arrays (one device-to-host transfer for all)."""
+    names = list(decision.inputs)
+    return dict(zip(names, to_host([torch.as_tensor(decision.inputs[k]) for k in names])))
+
+
+def to_host(tensors: Sequence[torch.Tensor]) -> list[np.ndarray]:
+    """Tensors ``[E, ...]`` as float32 numpy arrays (bools as 0/1) through one device-to-host transfer: those on a
+    device (a GPU) are packed into one ``[E, n]`` tensor there and copied once; those on the CPU are only
+    converted. The values are exactly the tensors' (float32 of float32, 0/1 of bools)."""
+    out: list[np.ndarray | None] = [None] * len(tensors)
+    on_device = [i for i, t in enumerate(tensors) if t.device.type != "cpu"]
+    for i, t in enumerate(tensors):
+        if t.device.type == "cpu":
+            out[i] = t.detach().float().numpy().copy()
+    if on_device:
+        parts = [tensors[i].detach().float() for i in on_device]
+        packed = torch.cat([p.reshape(p.shape[0], -1) for p in parts], 1).cpu().numpy()
+        start = 0
+        for i, p in zip(on_device, parts):
+            width = int(np.prod(p.shape[1:], dtype=np.int64))
+            out[i] = packed[:, start:start + width].reshape(p.shape).copy()
+            start += width
+    return out  # type: ignore[return-value]
 
 
 Override = Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
@@ -326,17 +347,16 @@ def agent_step(agent: Policy, vec_env: VecEnv, integrator: Integrator, state: to
                  next_state, terminal, radius)
 
 
-def _np(t: torch.Tensor) -> np.ndarray:
-    return t.detach().float().cpu().numpy() if t.dtype.is_floating_point else t.detach().cpu().numpy()
-
-
 def _info(vec_env: VecEnv, obs: Observation, episode, step, active, state, action, habit, delta, predicted,
           reward, next_state, terminal, zone_radius: float) -> StepInfo:
+    """The step's record; the agent's tensors reach the host in one transfer (:func:`to_host`)."""
+    state, action, habit, delta, predicted, reward, next_state, terminal = to_host(
+        [state, action, habit, delta, predicted, reward, next_state, terminal])
     return StepInfo(
         episode=np.asarray(episode, dtype=np.int64).copy(), step=np.asarray(step, dtype=np.int64).copy(),
-        active=np.asarray(active, dtype=bool).copy(), state=_np(state), action=_np(action),
-        habit=_np(habit).astype(bool), delta=_np(delta), predicted_arm=_np(predicted), reward=_np(reward),
-        done=obs.last.copy(), reached=obs.reached.copy(), vision=obs.vision.copy(), next_state=_np(next_state),
-        terminal=_np(terminal).astype(bool), zone_radius=float(zone_radius), **vec_env.snapshot())
+        active=np.asarray(active, dtype=bool).copy(), state=state, action=action,
+        habit=habit.astype(bool), delta=delta, predicted_arm=predicted, reward=reward,
+        done=obs.last.copy(), reached=obs.reached.copy(), vision=obs.vision.copy(), next_state=next_state,
+        terminal=terminal.astype(bool), zone_radius=float(zone_radius), **vec_env.snapshot())
 
 

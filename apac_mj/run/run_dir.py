@@ -112,8 +112,8 @@ def validate(cfg: TrainConfig) -> None:
     if cfg.device not in ("cpu", "cuda") and not cfg.device.startswith("cuda:"):
         raise ValueError(f"device must be 'cpu' or 'cuda', got {cfg.device!r}")
     check_device(cfg.device)
-    if cfg.precision not in ("fp32", "bf16"):
-        raise ValueError(f"precision must be 'fp32' or 'bf16', got {cfg.precision!r}")
+    if cfg.precision not in ("fp32", "bf16", "auto"):  # auto: resolved by the trainer before prepare()
+        raise ValueError(f"precision must be 'fp32', 'bf16' or 'auto', got {cfg.precision!r}")
     if cfg.actuation not in ("servo", "kinematic"):
         raise ValueError(f"actuation must be 'servo' or 'kinematic', got {cfg.actuation!r}")
     check_kind(cfg.agent)  # an unknown kind: an error listing the registered ones

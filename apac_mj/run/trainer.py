@@ -52,6 +52,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
+from apac_mj.agent import precision as precisions
 from apac_mj.agent.agent import Agent
 from apac_mj.config import TrainConfig
 from apac_mj.kinds import arbitrator_for
@@ -124,6 +125,7 @@ def train(cfg: TrainConfig, out_dir: str | Path, progress: bool = True, on_step:
     finished are said on stderr, as is a fallback to an older checkpoint.
     """
     run = RunDir(out_dir)
+    cfg = resolved_precision(cfg, run)
     config, run_episodes = run.prepare(cfg)
     if run_episodes == cfg.episodes and run.check_finished():
         say(f"{run.path} already finished {cfg.episodes} episodes; nothing to train "
@@ -155,6 +157,22 @@ def train(cfg: TrainConfig, out_dir: str | Path, progress: bool = True, on_step:
     finally:
         bar.close()
     return run.path
+
+
+def resolved_precision(cfg: TrainConfig, run: RunDir) -> TrainConfig:
+    """``cfg`` with ``precision = "auto"`` resolved (:func:`apac_mj.agent.precision.resolve`), said on stderr:
+    an existing run keeps the precision its config.json records (it continues as it started, on any
+    machine); a new one gets what this machine's hardware supports. Other precisions pass unchanged."""
+    if cfg.precision != "auto":
+        return cfg
+    if run.exists():
+        stored = run.config().get("precision")
+        if stored in ("fp32", "bf16"):
+            say(f"precision {stored}: auto keeps the precision {run.path} was started with (config.json)")
+            return dataclasses.replace(cfg, precision=stored)
+    choice = precisions.resolve("auto", cfg.device)
+    say(f"precision {choice.precision}: {choice.reason}")
+    return dataclasses.replace(cfg, precision=choice.precision)
 
 
 @dataclasses.dataclass
@@ -261,9 +279,10 @@ def _step(cfg: TrainConfig, loop: LoopState, active: np.ndarray, episodes: Episo
 def _babbling_action(cfg: TrainConfig, action: torch.Tensor, habit: torch.Tensor, babbling: np.ndarray,
                      gens: list[torch.Generator]) -> tuple[torch.Tensor, torch.Tensor]:
     scale = cfg.agent.babbling_scale
+    members = np.flatnonzero(babbling)
+    draws = torch.stack([(torch.rand(2, generator=gens[k]) * 2 - 1) * scale for k in members])  # on the CPU
     action = action.clone()
-    for k in np.flatnonzero(babbling):
-        action[k] = ((torch.rand(2, generator=gens[k]) * 2 - 1) * scale).to(action.device)
+    action[torch.as_tensor(members, device=action.device)] = draws.to(action.device)  # one transfer for all
     return action, habit & ~torch.as_tensor(babbling, device=habit.device)
 
 
