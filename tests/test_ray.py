@@ -140,7 +140,7 @@ def test_grid_on_a_ray_cluster_survives_a_killed_worker_node(tmp_path: Path) -> 
     sets = [a for kv in CLUSTER for a in ("--set", kv)]
     # Ray 2.60's head turns token authentication on: every node and the driver carry the cluster's token
     env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0", "RAY_AUTH_MODE": "token", "RAY_AUTH_TOKEN": secrets.token_hex(32)}
-    proc, address = None, f":{port}"
+    proc, address = None, None
     try:
         _ray_start("--head", "--node-ip-address=127.0.0.1", f"--port={port}", "--include-dashboard=false",
                    temp_dir=head_dir, env=env)
@@ -165,7 +165,7 @@ def test_grid_on_a_ray_cluster_survives_a_killed_worker_node(tmp_path: Path) -> 
     finally:
         if proc is not None and proc.poll() is None:
             proc.kill()
-        _kill(_node_processes(worker_dir, head_dir, address))
+        _kill(_node_processes(worker_dir, head_dir, *([address] if address else [])))
         shutil.rmtree(head_dir, ignore_errors=True)
         shutil.rmtree(worker_dir, ignore_errors=True)
     assert all(c["status"] == "done" for c in _cells(tmp_path / "ray").values())
