@@ -122,6 +122,7 @@ def run_one(algo: str, setting: str, task: str, seed: int, episodes: int, action
     model.learn(total_timesteps=steps, callback=StopTrainingOnMaxEpisodes(max_episodes=episodes))
     seconds = time.perf_counter() - start
     trained, last_success, last_noop = len(env.success), env.success[-LAST:], env.noop[-LAST:]
+    env.tag = ""  # no progress lines for the test episodes
     success, distance = frozen_test(model, env)
     return {"algo": algo, "setting": setting, "task": task, "seed": seed, "action": action,
             "observation": observation, "episodes": trained,
