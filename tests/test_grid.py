@@ -64,6 +64,9 @@ def test_overrides() -> None:
     ("precision=fp8", "precision has unknown value(s) ['fp8']"),
     ("epochs=3", "unknown key(s) ['epochs']"),
     ("agent.batch=3", "unknown [agent] key(s) ['batch']"),
+    ("batchsize=64", "unknown key(s) ['batchsize']; did you mean 'batch_size'? (--help"),  # the nearest, not all
+    ("agent.batchsize=64", "unknown [agent] key(s) ['batchsize']; did you mean 'batch_size'?;"),
+    ("episodez=3", "unknown key(s) ['episodez']; did you mean 'episodes'?"),
     ("agent.actor_lr=2.0", "actor_lr must be in (0, 1]"),
     ("tests.occluded=maybe", "tests.occluded must be true or false"),
     ("tests.vision=true", "[tests] keys must be among"),

@@ -112,3 +112,17 @@ def test_links_change_at_run_time_in_a_running_env():
     end, elbow = motion_function(alpha, beta, 4.0, 10.0)
     np.testing.assert_allclose(env.physics.end_effector(), end, atol=1e-9)
     np.testing.assert_allclose(env.physics.elbow(), elbow, atol=1e-9)
+
+
+def test_documented_physics_accessors():
+    """docs/environment.md's example (the accessors a user regression-tests against the motion function) runs
+    as written, on a task with another origin too."""
+    from pathlib import Path
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "environment.md").read_text()
+    section = doc[doc.index("**The Physics accessors**"):]
+    code = section[section.index("```python\n") + 10:section.index("```\n", section.index("```python\n") + 10)]
+    exec(compile(code, "docs/environment.md", "exec"), {})
+    moved = code.replace('task_kwargs={"random": 0}', 'task_kwargs={"random": 0, "origin": (10.0, 12.0)}')
+    assert moved != code
+    exec(compile(moved + "assert np.array_equal(p.origin(), [10.0, 12.0])\n", "docs/environment.md", "exec"), {})

@@ -150,3 +150,12 @@ def test_agent_overrides_for_scripts_use_the_same_grammar():
     assert train_cmd.agent_overrides(["agent.kalman.window=9"]) == {"params": {"kalman": {"window": 9}}}
     with pytest.raises(ValueError, match="unknown AgentConfig field"):
         train_cmd.agent_overrides(["no_such=1"])
+
+
+def test_a_misspelled_field_gets_the_nearest_names_not_a_list_of_unrelated_ones(capsys):
+    from apac_mj.cli import main
+
+    assert main(["train", "--task", "static_target", "--agent", "ddpg", "--set", "batchsize=64", "--out", "unused"]) != 0
+    err = capsys.readouterr().err
+    assert "apac-mj train: error: --set batchsize: unknown key(s) ['batchsize']; did you mean 'batch_size'?" in err
+    assert "checkpoint_every" not in err  # no list of the run's unrelated fields

@@ -262,6 +262,28 @@ def test_record_says_when_agent_or_task_differ_from_the_run(tiny_run, tmp_path, 
     assert f"trained on {trained['task']}; recording on static_target" in err
 
 
+def test_record_refuses_a_task_with_another_plane_or_shoulder(tiny_run, tmp_path, capsys):
+    """A run's networks read positions and command angles in the frame they were trained in: recording them on
+    a task whose shoulder (or plane) lies elsewhere is an error naming both geometries, and writes nothing."""
+    import dataclasses
+
+    from apac_mj.cli import main
+    from apac_mj.suite.task_spec import load_task, register_task, unregister_task
+
+    run_dir, _ = tiny_run
+    trained = json.loads((run_dir / "config.json").read_text())["task"]
+    for name, change in (("moved_shoulder", {"origin": (10.0, 12.0)}), ("wider_plane", {"plane_size": (40.0, 30.0)})):
+        register_task(dataclasses.replace(load_task(trained), name=name, **change))
+        try:
+            out = tmp_path / f"{name}.rrd"
+            assert main(["record", "--run", str(run_dir), "--episodes", "1", "--task", name, "--out", str(out)]) != 0
+            err = capsys.readouterr().err
+            assert f"apac-mj record: error: --task {name}: its arm geometry" in err and "(15.0, 15.0)" in err
+            assert not out.exists()
+        finally:
+            unregister_task(name)
+
+
 def test_dashed_forward_model_arm_geometry():
     """The predicted arm is drawn as dashes: every other piece of length ``dash`` along each segment."""
     strip = np.array([[15.0, 15.0], [21.0, 15.0], [21.0, 18.0]])  # segments of 6 and 3 cm

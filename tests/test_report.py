@@ -19,7 +19,7 @@ from apac_mj.cli import main
 from apac_mj.experiments import grid
 from apac_mj.experiments.presets import load_preset
 from apac_mj.experiments.results import load_results, load_tests
-from apac_mj.report import figures, labels, stats
+from apac_mj.report import figures, labels, quantities, stats
 from apac_mj.report.quantities import judged_reached, key_numbers, per_seed
 from apac_mj.suite.task_spec import TaskSpec, load_task, register_task, unregister_task
 
@@ -278,7 +278,7 @@ def test_figures_show_the_tables_numbers(made, tmp_path, monkeypatch) -> None:
     real_bar, real_axhline, real_close = matplotlib.axes.Axes.bar, matplotlib.axes.Axes.axhline, figures.plt.close
 
     def bar(self, x, height, *a, yerr=None, **k):
-        bars.append((np.asarray(height, float), np.asarray(yerr, float), k.get("label")))
+        bars.append((np.atleast_1d(np.asarray(height, float)), np.asarray(yerr, float).reshape(2, -1), k.get("label")))
         return real_bar(self, x, height, *a, yerr=yerr, **k)
 
     def axhline(self, *a, **k):
@@ -303,7 +303,7 @@ def test_figures_show_the_tables_numbers(made, tmp_path, monkeypatch) -> None:
     out = report.write_report(results, tmp_path / "rep")
     table = key_table(out)
     sel = table[(table["quantity"] == "test_success") & (table["condition"] == "static_target")]
-    height, yerr, label = bars[0]  # first bar group of Fig. 4: DDPG over the conditions
+    height, yerr, label = bars[0]  # Fig. 4's first bar: DDPG on the first condition
     r = sel[sel["agent"] == "ddpg"].iloc[0]
     assert label == "DDPG" and height[0] == pytest.approx(r["mean"])
     assert yerr[:, 0] == pytest.approx([r["mean"] - r["ci95_low"], r["ci95_high"] - r["mean"]])
@@ -442,3 +442,98 @@ def test_the_report_leaves_the_matplotlib_backend_alone_at_import() -> None:
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
                          env={**os.environ, "MPLBACKEND": "svg"})
     assert out.stdout.strip() == "svg"
+
+
+def _split_cells(line: str) -> list[str]:
+    """A Markdown table row's cells as a renderer splits them: at every ``|`` not escaped by a backslash."""
+    import re
+
+    return [c.strip() for c in re.split(r"(?<!\\)\|", line.strip())[1:-1]]
+
+
+def test_table_cells_with_a_pipe_keep_the_columns(made) -> None:
+    """'|estimate - truth|' in a description is escaped: every row has the header's columns, and the cell
+    reads back as written."""
+    _, out = made
+    md = (out / "report.md").read_text().splitlines()
+    for start in (md.index("## Key numbers"), md.index("## Key differences")):
+        first = next(i for i in range(start, len(md)) if md[i].startswith("|"))
+        end = next((i for i in range(first, len(md)) if not md[i].startswith("|")), len(md))
+        rows = md[first:end]
+        width = len(_split_cells(rows[0]))
+        assert all(len(_split_cells(r)) == width for r in rows), [r for r in rows if len(_split_cells(r)) != width]
+    error_rows = [r for r in md if "estimate - truth" in r]
+    assert error_rows and all("\\|estimate - truth\\|" in r for r in error_rows)
+    assert _split_cells(error_rows[0])[1].replace("\\|", "|").startswith("state-estimate error |estimate - truth|")
+
+
+def test_repeated_identical_test_episodes_count_once(made, tmp_path) -> None:
+    """A static target tested 100 times per seed by a frozen network is one outcome per seed: 3 seeds that
+    all reach it give 3 samples and the Wilson interval of 3 of 3 ([43.85, 100]), not of 300 of 300
+    ([98.74, 100]). Distinct targets, and noisy vision's episodes, keep counting each."""
+    import shutil
+
+    results, _ = made
+    copy = tmp_path / "r"
+    shutil.copytree(results, copy)
+    f = copy / "ddpg__static_target" / "eval" / "grid.parquet"
+    df = pd.read_parquet(f)
+    same = pd.concat([df[df["seed"] == s].iloc[[0] * 100] for s in (0, 1, 2)], ignore_index=True)
+    same["target_index"], same["success"] = np.tile(np.arange(100), 3), True
+    same.to_parquet(f)
+    out = report.write_report(copy, draw=False)
+    table = key_table(out)
+    r = _row(table, "test_success", "ddpg", "static_target")
+    lo, hi = stats.wilson_interval(3, 3)
+    assert (r["mean"], r["samples"]) == (100.0, 3)
+    assert r["ci95_low"] == pytest.approx(100 * lo) and r["ci95_low"] == pytest.approx(43.85, abs=0.01)
+    assert _row(table, "test_steps_to_reach", "ddpg", "static_target")["samples"] == 3
+    assert _row(table, "test_success", "ddpg", "changing_target")["samples"] == 36  # 12 distinct targets x 3
+    noisy = same.assign(condition="changing_target_noisy", agent="ddpg")  # repeated targets, noisy vision
+    assert len(quantities.distinct_episodes(noisy)) == 300 and len(quantities.distinct_episodes(
+        same.assign(condition="static_target", agent="ddpg"))) == 3
+
+
+def test_scoreboard_draws_float32_noise_as_zero_and_labels_each_bar(made, tmp_path, monkeypatch) -> None:
+    """Fig. 11: a state-estimate error of 5e-7 cm (float32 rounding under perfect vision) is a zero bar on
+    an axis of at least 0.05 cm, not a difference; each count sits under its own bar and no two overlap;
+    every bar of a condition is centred on its tick."""
+    import matplotlib.axes
+
+    results, _ = made
+    seed_values = per_seed(load_results(results), load_tests(results))
+    tiny = (seed_values["quantity"] == "test_estimate_error") & (seed_values["condition"] == "static_target")
+    seed_values.loc[tiny, "value"] = 5e-7 + 1e-8 * seed_values.loc[tiny, "seed"]
+    table = key_numbers(seed_values)
+    bars = []
+    real_bar = matplotlib.axes.Axes.bar
+
+    def bar(self, x, height, *a, **k):
+        bars.append((self, float(x), float(height)))
+        return real_bar(self, x, height, *a, **k)
+
+    monkeypatch.setattr(matplotlib.axes.Axes, "bar", bar)
+    closed = []
+    monkeypatch.setattr(figures.plt, "close", lambda fig: closed.append(fig))
+    rd = figures.ReportData(results=results, metrics=load_results(results), tests=load_tests(results),
+                            seed_values=seed_values, table=table)
+    figures.fig_scoreboard(rd, tmp_path / "fig11.png")
+    fig = closed[0]
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    error_ax = next(ax for ax in fig.axes if ax.get_title().startswith("state-estimate error"))
+    conds = [t.get_text() for t in error_ax.get_xticklabels()]
+    first = [h for ax, x, h in bars if ax is error_ax and abs(x - 0) < 0.45]  # the static target's bars
+    assert conds[0] == "ss" and first and all(h == 0.0 for h in first)
+    assert error_ax.get_ylim()[1] >= figures.CM_AXIS_MIN
+    for ax in fig.axes:
+        xs = sorted(x for a, x, _ in bars if a is ax)
+        for c in range(len(ax.get_xticks())):
+            group = [x for x in xs if abs(x - c) < 0.45]
+            assert not group or abs(np.mean(group) - c) < 1e-9  # centred on the condition's tick
+        labels_ = [t for t in ax.get_xticklabels(minor=True) if t.get_text()]
+        if labels_:
+            assert sorted(t.get_position()[0] for t in labels_) == pytest.approx(xs)
+            boxes = sorted((t.get_window_extent(renderer) for t in labels_), key=lambda b: b.x0)
+            assert all(a.x1 <= b.x0 + 0.5 for a, b in zip(boxes, boxes[1:])), "count labels overlap"
+    figures.plt.close("all")

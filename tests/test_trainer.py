@@ -400,3 +400,12 @@ def test_cli_device_without_cuda_leaves_no_run_dir(tmp_path, capsys):
         pytest.skip("needs a machine without CUDA")
     assert main(["train", "--episodes", "1", "--device", "cuda", "--out", str(tmp_path / "x"), "--no-progress"]) == 2
     assert "CUDA is not available" in capsys.readouterr().err and not (tmp_path / "x").exists()
+
+
+def test_progress_bar_labels_motor_babbling(tmp_path, capsys):
+    """The bar does not sit at 0/N unlabelled while the agent babbles: it says so, then drops the label."""
+    train(tiny_config(seeds=(0,), episodes=1, agent="ddpg", babbling_episodes=2), tmp_path / "run", progress=True)
+    lines = [ln for ln in capsys.readouterr().err.replace("\r", "\n").splitlines() if "ddpg" in ln]
+    babbling = [ln for ln in lines if "motor babbling" in ln]
+    assert any("episode 1 of 2" in ln for ln in babbling) and any("episode 2 of 2" in ln for ln in babbling)
+    assert all("0/1" in ln for ln in babbling) and "motor babbling" not in lines[-1] and "1/1" in lines[-1]

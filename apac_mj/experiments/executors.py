@@ -31,6 +31,10 @@ from tqdm.auto import tqdm
 STOP_SECONDS = 10.0
 
 OnResult = Callable[[dict[str, Any]], None]
+#: How often Ray reruns a cell whose worker process or node died (a Python exception in a cell is not
+#: retried: it is the cell's "failed" status). The rerun resumes from the cell's last checkpoint, so the
+#: numbers equal an uninterrupted run's (tests/test_ray.py kills a worker node mid-cell).
+RAY_CELL_RETRIES = 3
 #: ``run_cell(cell_dir, progress, threads) -> {"cell", "status", ...}``; a module-level function (pickled
 #: for process pools and Ray).
 CellRunner = Callable[[str, bool, int], dict[str, Any]]
@@ -168,7 +172,7 @@ class RayExecutor:
         watchdog = _ray_watchdog() if started_here and not self.address else None
         pending: list[Any] = []
         try:
-            remote = ray.remote(num_cpus=threads, max_retries=0)(_safe_run_cell)
+            remote = ray.remote(num_cpus=threads, max_retries=RAY_CELL_RETRIES)(_safe_run_cell)
             pending = [remote.remote(run_cell, d, False, threads) for d in cell_dirs]
             with _grid_bar(progress, done, total or len(cell_dirs)) as bar:
                 while pending:

@@ -214,7 +214,8 @@ def _agent_table(agent: Any, name: str) -> dict[str, Any]:
         raise PresetError(f"preset {name!r}: [agent] must be a table of AgentConfig overrides")
     unknown = sorted(set(agent) - _agent_fields())
     if unknown:
-        raise PresetError(f"preset {name!r}: unknown [agent] key(s) {unknown}; known: {sorted(_agent_fields())}")
+        hint = overrides.did_you_mean(unknown[0], _agent_fields()) if len(unknown) == 1 else ""
+        raise PresetError(f"preset {name!r}: unknown [agent] key(s) {unknown}{hint}; known: {sorted(_agent_fields())}")
     try:
         return overrides.typed_fields(AgentConfig, agent, "agent.")
     except overrides.OverrideError as e:

@@ -110,6 +110,15 @@ def _say_overrides(run: str | Path, task: str | None, agent: str | None, seed: i
         say(f"note: {run} trained {cfg.agent.kind}; recording its networks arbitrated as {agent} "
             f"(--agent {agent})")
     if task not in (None, cfg.task):
+        trained = Geometry.from_spec(spec_for(cfg))
+        other = Geometry.from_spec(spec_for(dataclasses.replace(cfg, task=task)))
+        if other != trained:
+            raise ValueError(f"--task {task}: its arm geometry (plane {other.plane_size}, shoulder {other.origin}, "
+                             f"joint range {other.joint_range}) differs from the one {run} was trained on "
+                             f"({cfg.task}: plane {trained.plane_size}, shoulder {trained.origin}, joint range "
+                             f"{trained.joint_range}); the networks read positions and command angles in the "
+                             "trained frame, so their actions there mean nothing. Record on a task with the "
+                             "trained plane, shoulder and joint range, or train on this one")
         say(f"note: {run} trained on {cfg.task}; recording on {task} (--task) with fresh environments "
             f"seeded from --seed {seed}, not the run's")
 

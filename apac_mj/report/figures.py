@@ -185,31 +185,48 @@ def _hide_unused(axes: np.ndarray, used_per_row: Sequence[int]) -> None:
             ax.set_visible(False)
 
 
+#: Values in cm below this are float32 rounding, not a measured difference (positions of ~30 cm carry
+#: ~2e-6 cm of float32 resolution; the target zone is 0.5 cm): the bars draw them as 0, the axis spans at
+#: least :data:`CM_AXIS_MIN`.
+CM_NOISE = 1e-4
+CM_AXIS_MIN = 0.05
+
+
 def _bars(ax: plt.Axes, table: pd.DataFrame, seed_values: pd.DataFrame, quantity: str, conds: list[str],
-          agents_: list[str]) -> None:
-    """Grouped bars (x: condition, one bar per agent): the table's mean and 95% interval, unclipped (the
-    intervals respect the quantity's range), with each seed's value as a dot."""
-    width = 0.8 / max(len(agents_), 1)
+          agents_: list[str], cm: bool = False) -> None:
+    """Grouped bars (x: condition, one bar per agent with a value there, centred on the condition's tick):
+    the table's mean and 95% interval, unclipped (the intervals respect the quantity's range), with each
+    seed's value as a dot. A count behind a mean over some of the samples (e.g. reached targets) is written
+    under its bar, below the axis. ``cm``: values below :data:`CM_NOISE` are drawn as 0."""
     sel = table[table["quantity"] == quantity]
     seeds = seed_values[seed_values["quantity"] == quantity]
-    for k, agent in enumerate(agents_):
-        rows = [sel[(sel["agent"] == agent) & (sel["condition"] == c)] for c in conds]
-        mean = np.array([r["mean"].iloc[0] if len(r) else np.nan for r in rows])
-        lo = np.array([r["ci95_low"].iloc[0] if len(r) else np.nan for r in rows])
-        hi = np.array([r["ci95_high"].iloc[0] if len(r) else np.nan for r in rows])
-        err = np.nan_to_num(np.vstack([mean - lo, hi - mean]))
-        x = np.arange(len(conds)) + (k - (len(agents_) - 1) / 2) * width
-        ax.bar(x, mean, width, yerr=err, capsize=3, color=AGENT_COLOR[agent], label=AGENT_LABEL[agent], alpha=0.85)
-        for xi, r in zip(x, rows):  # the count behind a mean over some of the samples (e.g. reached targets)
-            if len(r) and pd.notna(r["samples_of"].iloc[0]):
-                ax.annotate(f"{int(r['samples'].iloc[0])}/{int(r['samples_of'].iloc[0])}", (xi, 0), ha="center",
-                            va="bottom", fontsize=7, rotation=90, xytext=(0, 2), textcoords="offset points")
-        for xi, cond in zip(x, conds):
-            v = seeds[(seeds["agent"] == agent) & (seeds["condition"] == cond)]["value"].dropna().to_numpy()
+    width = 0.8 / max(len(agents_), 1)
+    floor = (lambda v: np.where(np.abs(v) < CM_NOISE, 0.0, v)) if cm else (lambda v: v)
+    counts: list[tuple[float, str]] = []
+    labelled: set[str] = set()
+    for c, cond in enumerate(conds):
+        rows = [(a, sel[(sel["agent"] == a) & (sel["condition"] == cond)]) for a in agents_]
+        rows = [(a, r) for a, r in rows if len(r)]
+        for k, (agent, r) in enumerate(rows):
+            x = c + (k - (len(rows) - 1) / 2) * width
+            mean, lo, hi = (float(floor(np.array(r[col].iloc[0]))) for col in ("mean", "ci95_low", "ci95_high"))
+            err = np.nan_to_num([[mean - lo], [hi - mean]]).clip(min=0)
+            ax.bar(x, mean, width, yerr=err, capsize=3, color=AGENT_COLOR[agent], alpha=0.85,
+                   label=None if agent in labelled else AGENT_LABEL[agent])
+            labelled.add(agent)
+            if pd.notna(r["samples_of"].iloc[0]):
+                counts.append((x, f"{int(r['samples'].iloc[0])}/{int(r['samples_of'].iloc[0])}"))
+            v = floor(seeds[(seeds["agent"] == agent) & (seeds["condition"] == cond)]["value"].dropna().to_numpy())
             jitter = np.linspace(-width / 4, width / 4, len(v)) if len(v) > 1 else np.zeros(len(v))
-            ax.scatter(xi + jitter, v, s=9, color="black", zorder=3, label="single seeds" if k == 0 and
-                       cond == conds[0] and len(v) else None)
+            ax.scatter(x + jitter, v, s=9, color="black", zorder=3,
+                       label="single seeds" if "seeds" not in labelled and len(v) else None)
+            labelled |= {"seeds"} if len(v) else set()
     ax.set_xticks(np.arange(len(conds)), [condition_short(c) for c in conds])
+    if counts:  # each count under its own bar, the condition names below them
+        ax.set_xticks([x for x, _ in counts], [t for _, t in counts], minor=True, rotation=90, fontsize=6)
+        ax.tick_params(axis="x", which="major", pad=30, length=0)
+    if cm:
+        ax.set_ylim(bottom=0, top=max(ax.get_ylim()[1], CM_AXIS_MIN))
 
 
 def _table_mean(table: pd.DataFrame, quantity: str, agent: str, cond: str) -> float:
@@ -447,7 +464,7 @@ def fig_scoreboard(data: ReportData, path: Path) -> Path:
     axes = _axes((len(panels) + ncols - 1) // ncols, ncols,
                  w=min(9.0, max(4.2, 0.3 * len(agents_) * len(conds) + 1.5)))
     for ax, (q, title, ylabel, ylim) in zip(axes.flat, panels):
-        _bars(ax, table, data.seed_values, q, conds, agents_)
+        _bars(ax, table, data.seed_values, q, conds, agents_, cm=ylabel == "cm")
         _style(ax, title, "condition", ylabel, ylim=ylim)
     for ax in list(axes.flat)[len(panels):]:
         ax.set_visible(False)

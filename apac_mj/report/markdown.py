@@ -64,11 +64,10 @@ def _key_numbers(table: pd.DataFrame, show_seeds: bool) -> list[str]:
     head += " per seed |" if show_seeds else ""
     lines = ["## Key numbers", "", head + " paper |", "|---" * (head.count("|")) + "|"]
     for r in table.itertuples():
-        row = (f"| {r.figure} | {r.description} ({r.unit}) | {AGENT_LABEL[r.agent]} | {condition_short(r.condition)} "
-               f"| {r.n_seeds} | {_samples(r.samples, r.samples_of)} | {fmt(r.mean)} "
-               f"| {_ci(r.ci95_low, r.ci95_high)} |")
-        row += f" {r.per_seed} |" if show_seeds else ""
-        lines.append(row + f" {r.paper or '-'} |")
+        cells = [r.figure, f"{r.description} ({r.unit})", AGENT_LABEL[r.agent], condition_short(r.condition),
+                 r.n_seeds, _samples(r.samples, r.samples_of), fmt(r.mean), _ci(r.ci95_low, r.ci95_high)]
+        cells += [r.per_seed] if show_seeds else []
+        lines.append(table_row(cells + [r.paper or "-"]))
     return lines
 
 
@@ -81,9 +80,16 @@ def _differences(diffs: pd.DataFrame) -> list[str]:
               "pooled counts. An interval that excludes 0 is a difference these seeds resolve.",
               "", "| quantity | comparison | seeds | difference | 95% CI |", "|---|---|---|---|---|"]
     for r in diffs.itertuples():
-        lines.append(f"| {r.description} ({r.unit}) | {r.comparison} | {r.n_seeds} | {fmt(r.difference)} "
-                     f"| {_ci(r.ci95_low, r.ci95_high)} |")
+        lines.append(table_row([f"{r.description} ({r.unit})", r.comparison, r.n_seeds, fmt(r.difference),
+                                _ci(r.ci95_low, r.ci95_high)]))
     return lines
+
+
+def table_row(cells: Sequence[object]) -> str:
+    """One row of a Markdown table; a ``|`` inside a cell (``|estimate - truth|``) is escaped so it
+    does not split the cell, a line break becomes a space."""
+    return "| " + " | ".join(str(c).replace("\\", "\\\\").replace("|", "\\|").replace("\n", " ")
+                             for c in cells) + " |"
 
 
 def _ci(lo: float, hi: float) -> str:

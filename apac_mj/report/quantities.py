@@ -129,10 +129,27 @@ def per_seed(metrics: pd.DataFrame, tests: pd.DataFrame) -> pd.DataFrame:
     ``of`` (for a mean over some of the samples, e.g. steps of the reached targets: of how many)."""
     rows = _training(metrics[metrics["region"] == "all"])
     if not tests.empty:
-        rows += _grid_tests(tests[tests["protocol"] == "grid"])
+        rows += _grid_tests(distinct_episodes(tests[tests["protocol"] == "grid"]))
         rows += _generalization(tests[tests["protocol"] == "generalization"])
-        rows += _occluded(tests[tests["protocol"] == "occluded"])
+        rows += _occluded(distinct_episodes(tests[tests["protocol"] == "occluded"], always_seen_clean=True))
     return pd.concat([r for r in rows if not r.empty], ignore_index=True)
+
+
+def distinct_episodes(tests: pd.DataFrame, always_seen_clean: bool = False) -> pd.DataFrame:
+    """The test episodes that are distinct samples: a frozen network from the same start pose towards the
+    same target with noise-free observations runs the same episode every time, so of a seed's repeated
+    targets (a static-target task tests its one target 100 times) only the first counts. Conditions whose
+    test observations are noisy or intermittent (the grid protocol keeps the task's vision) keep every
+    episode; ``always_seen_clean``: the protocol's observations are noise-free whatever the task (occluded)."""
+    if tests.empty:
+        return tests
+    def deterministic(condition: str) -> bool:
+        spec = condition_spec(condition)
+        return always_seen_clean or (spec.vision in ("perfect", "occluded") and spec.vision_noise_std == 0)
+
+    keep = tests["condition"].map(deterministic).astype(bool)
+    repeated = tests.duplicated(subset=[*_KEYS, "target_x", "target_y"])
+    return tests[~(keep & repeated)]
 
 
 def _training(main: pd.DataFrame) -> list[pd.DataFrame]:

@@ -202,7 +202,20 @@ def _progress_bar(cfg: TrainConfig, loop: LoopState, rows: list[dict[str, Any]],
                desc=f"{cfg.agent.kind} {cfg.task} x{len(cfg.seeds)}", unit="ep")
     window = collections.deque(((r["success"], r["habit_actions"], r["planning_actions"])
                                 for r in rows if r["phase"] == "train"), maxlen=PROGRESS_WINDOW * len(cfg.seeds))
+    _say_babbling(bar, loop, cfg.agent.babbling_episodes)
     return bar, window
+
+
+def _say_babbling(bar: tqdm, loop: LoopState, babbling: int) -> None:
+    """The bar's label while the slowest member is still in motor babbling (before training episode 0)."""
+    if bar.disable:
+        return
+    first = int(loop.episode.min())
+    label = f"motor babbling: episode {babbling + first + 1} of {babbling}"
+    if first < 0 and bar.postfix != label:
+        bar.set_postfix_str(label)
+    elif str(bar.postfix or "").startswith("motor babbling"):
+        bar.set_postfix_str("")
 
 
 def _loop(cfg: TrainConfig, run: RunDir, config: dict[str, Any], loop: LoopState, rows: list[dict[str, Any]],
@@ -217,6 +230,7 @@ def _loop(cfg: TrainConfig, run: RunDir, config: dict[str, Any], loop: LoopState
             if row["phase"] == "train":
                 window.append((row["success"], row["habit_actions"], row["planning_actions"]))
         _progress(bar, loop, cfg.episodes, window)
+        _say_babbling(bar, loop, cfg.agent.babbling_episodes)
         if loop.slowest() // cfg.checkpoint_every > loop.checkpoints_done:
             loop.checkpoints_done = loop.slowest() // cfg.checkpoint_every
             _save(run, config, loop, episodes, babble_gens, rows)

@@ -199,7 +199,8 @@ def typed_fields(cls: type, values: dict[str, Any], where: str, skip: Iterable[s
     types_ = {k: v for k, v in field_types(cls).items() if k not in set(skip) and k != field}
     unknown = sorted(set(values) - set(types_) - set(named) - {field})
     if unknown:
-        raise OverrideError(f"{where.rstrip('.')}: unknown {cls.__name__} field(s) {unknown}; "
+        hint = did_you_mean(unknown[0], [*types_, *named]) if len(unknown) == 1 else ""
+        raise OverrideError(f"{where.rstrip('.')}: unknown {cls.__name__} field(s) {unknown}{hint}; "
                             f"known: {sorted(types_)}" + (f", tables: {sorted(named)}" if named else ""))
     out = {k: coerce(v, types_[k], f"{where}{k}") for k, v in values.items() if k in types_}
     given = {**values.get(field, {}), **{k: v for k, v in values.items() if k in named}} if field else {}
@@ -239,8 +240,19 @@ def apply_sets(data: dict[str, Any], items: Sequence[str], agent_fields: Iterabl
         first = key.split(".")[0]
         if first not in top_level and first in agent_fields:
             key = f"agent.{key}"
+        elif top_level and first not in top_level | {"agent"}:
+            raise OverrideError(f"--set {key}: unknown key(s) [{first!r}]{did_you_mean(first, top_level | agent_fields)} "
+                                "(--help lists the fields)")
         set_dotted(data, key, value)
     return data
+
+
+def did_you_mean(name: str, known: Iterable[str]) -> str:
+    """"; did you mean 'batch_size'?" with the known names nearest to a misspelled ``name`` ("" if none is)."""
+    import difflib
+
+    close = difflib.get_close_matches(name, sorted(known), n=3, cutoff=0.6)
+    return f"; did you mean {' or '.join(repr(c) for c in close)}?" if close else ""
 
 
 # -- docs for --help -------------------------------------------------------------------------
