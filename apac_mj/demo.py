@@ -26,7 +26,7 @@ def run_demo(preset: str | Path = "demo", out: str | Path = "results/demo", over
     episodes of the first arbitrating kind's main-study cell (0: none)."""
     from apac_mj.experiments import grid
     from apac_mj.experiments.presets import load_preset
-    from apac_mj.recording.record import record
+    from apac_mj.recording.record import reached_targets, record, showcase_member
     from apac_mj.report import write_report
 
     if record_episodes < 0:
@@ -40,6 +40,11 @@ def run_demo(preset: str | Path = "demo", out: str | Path = "results/demo", over
     rrd = None
     arbitrating = [c for c in grid.cells(p) if kinds.get(c.agent).arbitrates and c.region == "all"]
     if record_episodes and arbitrating:
-        rrd = out / f"{arbitrating[0].name}.rrd"
-        record(rrd, run=out / arbitrating[0].name, episodes=record_episodes, progress=progress)
+        rrd, run = out / f"{arbitrating[0].name}.rrd", out / arbitrating[0].name
+        reached = reached_targets(run, record_episodes)
+        member = showcase_member(reached)
+        say(f"recording seed {p.seeds[member]} of {arbitrating[0].name}: its {record_episodes} frozen episodes "
+            f"reach {int(reached[member].sum())} of {record_episodes} targets (all seeds: "
+            f"{int(reached.sum())} of {reached.size})")
+        record(rrd, run=run, member=member, episodes=record_episodes, progress=progress)
     return DemoResult(report_dir, rrd, time.perf_counter() - start)

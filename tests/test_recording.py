@@ -320,3 +320,26 @@ def _paper_rollout(tmp_path: Path) -> Path:
     path = tmp_path / "ideal.rrd"
     _record_plain_rollout(path, "changing_target", episodes=1)
     return path
+
+
+def test_reached_targets_predicts_what_each_members_recording_shows(tiny_run, tmp_path):
+    """The demo picks the seed to record from a dry rollout: it must be the rollout record() then writes."""
+    from apac_mj.recording.record import reached_targets, record
+
+    run_dir, _ = tiny_run
+    reached = reached_targets(run_dir, 2)
+    assert reached.shape == (2, 2)
+    for member in range(2):
+        out = record(tmp_path / f"m{member}.rrd", run=run_dir, member=member, episodes=2, progress=False).rrd
+        entities, _, _ = R.read_recording(out)
+        texts = [t[0] for t in entities[R.EVENTS].components["TextLog:text"]]
+        ends = [t.startswith("target reached") for t in texts if t.startswith(("target reached", "time limit"))]
+        assert ends == reached[member].tolist()
+
+
+def test_showcase_member_prefers_most_reached_then_a_reached_first_episode():
+    from apac_mj.recording.record import showcase_member
+
+    assert showcase_member(np.array([[False, True, True], [True, True, False], [True, True, True]])) == 2
+    assert showcase_member(np.array([[False, True, True], [True, True, False]])) == 1
+    assert showcase_member(np.array([[False, False], [False, False]])) == 0

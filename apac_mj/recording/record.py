@@ -20,7 +20,7 @@ from apac_mj.agent.agent import Agent
 from apac_mj.config import AgentConfig, TrainConfig
 from apac_mj.kinematics import Geometry
 from apac_mj.recording.recording import RENDER, EpisodeRecorder, read_recording
-from apac_mj.run.rollout import EpisodeLoop
+from apac_mj.run.rollout import EpisodeLoop, FunctionHook
 from apac_mj.run.run_dir import RunDir, config_dict, load_run, say, task_sizes, training_env
 from apac_mj.suite import spec_for
 from apac_mj.suite.render import write_video
@@ -62,6 +62,33 @@ def record(out: str | Path, run: str | Path | None = None, task: str | None = No
     if video is not None:
         write_video(video, recorder.frames, fps=fps)
     return Recorded(out, _frames(out), video, len(recorder.frames) if video is not None else 0)
+
+
+def reached_targets(run: str | Path, episodes: int, as_episode: int | None = None) -> np.ndarray:
+    """``[E, episodes]`` bool: which of the frozen episodes :func:`record` would roll out from ``run`` end
+    inside the target zone, for every member at once (the rollouts are deterministic: no noise, no
+    learning, the run's environments where training left off). Nothing is written."""
+    if episodes < 1:
+        raise ValueError(f"episodes must be >= 1, got {episodes}")
+    cfg, net, first, env_state, running = load_agent(run, None, None, 0, 0, as_episode)
+    env = rollout_env(cfg, 0, env_state)
+    reached = np.zeros((env.E, episodes), dtype=bool)
+    k = 0
+
+    def on_step(info: Any, _: VecEnv) -> None:
+        reached[:, k] |= info.done & info.reached
+
+    loop = EpisodeLoop(net, kinds.arbitrator_for(cfg.agent), env, hooks=[FunctionHook(on_step=on_step)], adapt=False)
+    loop.load_state_dict(running)
+    for k in range(episodes):
+        loop.run_episode(np.ones(env.E, dtype=bool), first + k)
+    return reached
+
+
+def showcase_member(reached: np.ndarray) -> int:
+    """The member to show a new user: most targets reached, then the first episode reached (a recording
+    opens on it), then the lowest index."""
+    return int(min(range(len(reached)), key=lambda m: (-int(reached[m].sum()), not reached[m, 0], m)))
 
 
 def _check(out: Path, run: str | Path | None, video: Path | None, episodes: int, fps: int, seed: int,

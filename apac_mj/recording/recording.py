@@ -192,39 +192,44 @@ def forward_model_error(rec: StepRecord) -> float:
 
 
 def default_blueprint(plane_size: Sequence[float] = (30.0, 30.0)) -> rrb.Blueprint:
-    """Render | plane view | time series side by side, with the events log under the render."""
+    """Two rows: the render, the plane view and the arbitration's three series on top (what a reader looks
+    at first); the events log and the plant's and the checks' series, one tab each, below. The time
+    panel is collapsed to its play bar, so the views get the window's height."""
     w, h = plane_size
 
     def view(name: str, *paths: str) -> rrb.TimeSeriesView:
         return rrb.TimeSeriesView(origin="series", contents=[f"+ {p}" for p in paths], name=name)
 
-    series = rrb.Vertical(
-        view("distance, reward", DISTANCE, REWARD),
-        view("|delta| vs threshold, controller (1 habit, 0 planning)", ABS_DELTA, DELTA_THRESHOLD, CONTROLLER),
+    arbitration = rrb.Vertical(
+        view("distance (cm), reward", DISTANCE, REWARD),
+        view("|delta| vs threshold; controller (1 habit, 0 planning)", ABS_DELTA, DELTA_THRESHOLD, CONTROLLER),
         rrb.TimeSeriesView(origin=ARBITRATION_INPUTS, name="why: the arbitrator's inputs to each decision"),
-        view("forward-model error, state-estimate error (cm), vision (1 seen, 0 not)", FORWARD_ERROR,
-             ESTIMATE_ERROR, VISION),
-        view("kinematics error: max |MuJoCo - motion function| (cm)", KINEMATICS_ERROR),
-        view("link lengths (cm)", L1, L2),
+    )
+    details = rrb.Tabs(
+        view("forward-model and state-estimate error (cm); vision (1 seen)", FORWARD_ERROR, ESTIMATE_ERROR,
+             VISION),
         rrb.TimeSeriesView(origin="series/plant",
                            name="plant: joint velocities (deg/s), field force at the hand (N), hand load (kg)"),
+        view("link lengths (cm)", L1, L2),
+        view("kinematics check: max |MuJoCo - motion function| (cm)", KINEMATICS_ERROR),
+        name="details",
     )
     return rrb.Blueprint(
-        rrb.Horizontal(
-            rrb.Vertical(
+        rrb.Vertical(
+            rrb.Horizontal(
                 rrb.Spatial2DView(origin="render", name="MuJoCo overhead render"),
-                rrb.TextLogView(origin=EVENTS, name="events"),
-                row_shares=[3, 1],
+                # Origin "/" so that the plane entity's y-flip applies (a view's own origin transform is ignored).
+                rrb.Spatial2DView(origin="/", contents=f"+ {PLANE}/**",
+                                  name="plane (cm): MuJoCo black, motion function orange, forward model dashed "
+                                       "green, commanded dashed purple, field force red",
+                                  visual_bounds=rrb.VisualBounds2D(x_range=[0, w], y_range=[0, h])),
+                arbitration,
+                column_shares=[1, 1.1, 1.3],
             ),
-            # Origin "/" so that the plane entity's y-flip applies (a view's own origin transform is ignored).
-            rrb.Spatial2DView(origin="/", contents=f"+ {PLANE}/**",
-                              name="plane (cm): MuJoCo black, motion function orange, forward model dashed green, "
-                                   "commanded dashed purple, field force red",
-                              visual_bounds=rrb.VisualBounds2D(x_range=[0, w], y_range=[0, h])),
-            series,
-            column_shares=[1, 1.2, 1.2],
+            rrb.Horizontal(rrb.TextLogView(origin=EVENTS, name="events"), details, column_shares=[1, 1.4]),
+            row_shares=[2.4, 1],
         ),
-        rrb.TimePanel(timeline="frame", play_state="following"),
+        rrb.TimePanel(timeline="frame", play_state="following", state="collapsed"),
         collapse_panels=True,
     )
 
