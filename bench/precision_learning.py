@@ -24,6 +24,7 @@ from pathlib import Path
 import pandas as pd
 
 from apac_mj.experiments.results import load_results, load_tests
+from apac_mj.report.markdown import table_row
 from apac_mj.report.quantities import QUANTITIES, fmt, is_rate, key_numbers, per_seed
 from apac_mj.report.stats import newcombe_interval, paired_difference
 from apac_mj.run.run_dir import RunDir
@@ -76,10 +77,11 @@ def markdown(df: pd.DataFrame, a: str, b: str) -> str:
     lines = [f"| quantity | agent | condition | seeds | {a} | {b} | {b} - {a} [95% CI] | agree |",
              "|---|---|---|---|---|---|---|---|"]
     for r in df.itertuples():
-        lines.append(f"| {r.description} ({r.unit}) | {r.agent} | {r.condition} | {r.n_seeds} | "
-                     f"{fmt(r.a_mean)} [{fmt(r.a_low)}, {fmt(r.a_high)}] | {fmt(r.b_mean)} [{fmt(r.b_low)}, "
-                     f"{fmt(r.b_high)}] | {fmt(r.difference)} [{fmt(r.diff_low)}, {fmt(r.diff_high)}] | "
-                     f"{'yes' if r.agree else '**no**'} |")
+        lines.append(table_row([f"{r.description} ({r.unit})", r.agent, r.condition, r.n_seeds,
+                                f"{fmt(r.a_mean)} [{fmt(r.a_low)}, {fmt(r.a_high)}]",
+                                f"{fmt(r.b_mean)} [{fmt(r.b_low)}, {fmt(r.b_high)}]",
+                                f"{fmt(r.difference)} [{fmt(r.diff_low)}, {fmt(r.diff_high)}]",
+                                "yes" if r.agree else "**no**"]))
     return "\n".join(lines)
 
 
