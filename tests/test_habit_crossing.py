@@ -29,3 +29,16 @@ def test_first_crossing_of_80_percent_over_a_20_episode_window():
     # a stricter threshold is crossed later or not at all
     strict = habit_crossing(metrics, threshold=0.95).set_index("seed")
     assert math.isnan(strict.loc[0, "episode"]) and strict.loc[2, "episode"] == 68
+
+
+def test_crossing_is_a_key_number_over_the_seeds_that_crossed():
+    """report.md's Fig. 5 rows carry the crossing episode: the mean over the seeds that crossed, with the
+    seeds that never did left out of the mean and listed as nan."""
+    from apac_mj.report.quantities import _training, key_numbers
+
+    metrics = pd.DataFrame(rows("apac", 0, 100, 9) + rows("apac", 1, 0, 7) + rows("apac", 2, 50, 10))
+    metrics["success"], metrics["steps"] = True, 10
+    seed_values = pd.concat(_training(metrics), ignore_index=True)
+    kn = key_numbers(seed_values).set_index("quantity").loc["habit_crossing_episode"]
+    assert kn["mean"] == (117 + 65) / 2 and kn["n_seeds"] == 2 and kn["samples"] == 600
+    assert kn["per_seed"] == "0: 117.00; 1: nan; 2: 65.00" and kn["paper"] == "around 300"

@@ -21,6 +21,12 @@ from apac_mj.types import HABIT_COST, PLANNING_COST
 #: Summary windows: the last LATE_FRACTION of training episodes.
 LATE_FRACTION = 0.2
 
+#: The paper's habit threshold (Fig. 5: "more than 80% of the actions are habitual after around 300 episodes").
+HABIT_THRESHOLD = 0.8
+#: Training episodes in the trailing window a seed's habit share is judged on for the first crossing.
+CROSSING_WINDOW = 20
+
+
 # What the paper states ("Results"), keyed by (quantity, agent, condition); "*" matches any.
 PAPER = {
     ("train_success_late", "spac", "*"): "near perfect after ~ep. 100",
@@ -30,6 +36,7 @@ PAPER = {
     ("train_success_late", "apac", "*"): "almost all, as good as SPAC",
     ("test_success", "*", "static_target"): "100%",
     ("habit_fraction_late", "apac", "*"): ">80% after ~300 episodes",
+    ("habit_crossing_episode", "apac", "*"): "around 300",
     ("generalization_targets", "*", "static_target"): "~39",
     ("generalization_targets", "*", "static_target_changing_kinematics"): "~42",
     ("generalization_targets", "*", "changing_target"): "~39",
@@ -47,6 +54,8 @@ QUANTITIES = {
     "test_success": ("Fig. 4", "test success rate (angle-grid targets)", "%"),
     "test_steps_to_reach": ("Fig. 4", "test steps to reach (reached targets)", "steps"),
     "habit_fraction_late": ("Fig. 5", "APAC habitual share of actions, last 20% of episodes", "%"),
+    "habit_crossing_episode": ("Fig. 5", f"first training episode with >= {HABIT_THRESHOLD:.0%} habitual actions over "
+                               f"the last {CROSSING_WINDOW} (seeds that crossed; samples: episodes run)", "episode"),
     "steps_late": ("Fig. 6", "action steps per episode, last 20% of episodes", "steps"),
     "time_late": ("Fig. 6", f"time per episode (planning = {PLANNING_COST} x habit), last 20%", "habit-step units"),
     "generalization_targets": ("Fig. 8", "held-out-region test targets", "targets"),
@@ -87,12 +96,6 @@ def late(metrics: pd.DataFrame) -> pd.DataFrame:
     train = metrics[metrics["phase"] == "train"]
     n = train.groupby(["agent", "condition", "region"])["episode"].transform("max") + 1
     return train[train["episode"] >= n - np.ceil(n * LATE_FRACTION)]
-
-
-#: The paper's habit threshold (Fig. 5: "more than 80% of the actions are habitual after around 300 episodes").
-HABIT_THRESHOLD = 0.8
-#: Training episodes in the trailing window a seed's habit share is judged on for the first crossing.
-CROSSING_WINDOW = 20
 
 
 def habit_crossing(metrics: pd.DataFrame, threshold: float = HABIT_THRESHOLD,
@@ -161,6 +164,9 @@ def _training(main: pd.DataFrame) -> list[pd.DataFrame]:
     arb = lt[lt["agent"].isin(arbitrating(lt))].groupby(_KEYS)
     habit, actions = arb["habit_actions"].sum(), arb["habit_actions"].sum() + arb["planning_actions"].sum()
     rows.append(_q("habit_fraction_late", 100 * habit / actions, actions, k=habit))
+    crossing = habit_crossing(main).set_index(_KEYS)
+    if len(crossing):
+        rows.append(_q("habit_crossing_episode", crossing["episode"], crossing["episodes"]))
     if "estimate_error" in lt and lt["estimate_error"].notna().any():  # results from before it lack the column
         rows.append(_q("estimate_error_late", g["estimate_error"].mean(), g.size()))
     return rows
