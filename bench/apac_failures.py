@@ -16,6 +16,10 @@ phase) is run again with every step kept, and the failed episodes are described:
   the same targets (the rule is not changed; these are counterfactual tests): the inverse model alone
   (arbitrated as SPAC) and the actor alone (as DDPG).
 
+The failed targets come from the run's ``eval/grid.parquet`` (``apac-mj evaluate`` or the grid wrote it);
+only those are re-run (the frozen episodes are deterministic: a re-run target that is reached is an
+error). Without it every target is run.
+
 Prints one table per run (per seed and over all seeds) and, with ``--json``, writes the numbers.
 """
 from __future__ import annotations
@@ -55,27 +59,47 @@ class StepLog(Hook):
                  "y": float(info.true_arm[k, 1])})
 
 
-def frozen_test(run: Path, kind: str | None = None, log: StepLog | None = None, limit: int = 0) -> pd.DataFrame:
-    """The run's frozen angle-grid test (as ``apac-mj evaluate``), arbitrated as ``kind`` (default: the run's)."""
+def frozen_test(run: Path, kind: str | None = None, log: StepLog | None = None,
+                only: list[np.ndarray] | None = None) -> pd.DataFrame:
+    """The run's frozen angle-grid test (as ``apac-mj evaluate``), arbitrated as ``kind`` (default: the run's);
+    ``only``: per member, the indices of the targets to run (the episodes are deterministic, so a subset
+    runs exactly as in the full test). ``target_index`` is the index in the member's full target list."""
     cfg, agent, ckpt = load_run(run, device="cpu")
     if kind is not None:
         cfg = dataclasses.replace(cfg, agent=dataclasses.replace(cfg.agent, kind=kind))
     spec = spec_for(cfg)
     lengths = ckpt.member_lengths()
     targets = evaluation_targets(spec, lengths, ckpt.member_targets())
-    targets = [t[:limit] for t in targets] if limit else targets
+    only = [np.arange(len(t)) for t in targets] if only is None else only
     running = ckpt.running_statistics()
     if kind is not None:
         running.pop("arbitrator", None)
-    rows = run_protocol(cfg, agent, spec, lengths, targets, occluded=False, hooks=[log] if log else [],
-                        running=running)
-    return pd.DataFrame(rows).drop(columns=["path_x", "path_y"])
+    rows = pd.DataFrame(run_protocol(cfg, agent, spec, lengths, [t[i] for t, i in zip(targets, only)],
+                                     occluded=False, hooks=[log] if log else [], running=running))
+    if rows.empty:
+        return rows
+    seeds = list(cfg.seeds)
+    if log is not None:  # the log's episode counter is the position in the subset: key it by target index
+        log.steps = {(int(only[k][i]), k): v for (i, k), v in log.steps.items()}
+    rows["target_index"] = [int(only[seeds.index(int(r.seed))][int(r.target_index)]) for r in rows.itertuples()]
+    return rows.drop(columns=["path_x", "path_y"])
+
+
+def failed_targets(run: Path, seeds: list[int]) -> list[np.ndarray] | None:
+    """Per member, the target indices its frozen test (``eval/grid.parquet``) failed; None without one."""
+    path = run / "eval" / "grid.parquet"
+    if not path.is_file():
+        return None
+    g = pd.read_parquet(path)
+    return [np.sort(g[(g.seed == s) & ~g.success].target_index.to_numpy()) for s in seeds]
 
 
 def describe_failures(tests: pd.DataFrame, log: StepLog, threshold: float, seeds: list[int]) -> pd.DataFrame:
     """One row per failed episode: how it ended, who acted, what the rule saw. The rule decides at every
     step from the third on, from the TD error of the step before (``ruled``: those previous deltas)."""
     out = []
+    if tests.empty:
+        return pd.DataFrame(out)
     for r in tests[~tests.success].itertuples():
         steps = log.steps[(int(r.target_index), seeds.index(int(r.seed)))]
         ruled = [(abs(prev["delta"]), s["habit"]) for prev, s in zip(steps, steps[1:]) if s["step"] >= 2]
@@ -93,22 +117,26 @@ def describe_failures(tests: pd.DataFrame, log: StepLog, threshold: float, seeds
     return pd.DataFrame(out)
 
 
-def analyse(run: Path, limit: int = 0) -> dict[str, Any]:
+def analyse(run: Path) -> dict[str, Any]:
+    """The failed episodes of the run's frozen test, re-run step by step, and the counterfactual controllers
+    on exactly those targets. Uses the run's ``eval/grid.parquet`` to find them (else runs every target)."""
     cfg, _, _ = load_run(run, device="cpu")
     seeds = list(cfg.seeds)
+    only = failed_targets(run, seeds)
     log = StepLog()
-    apac = frozen_test(run, log=log, limit=limit)
+    apac = frozen_test(run, log=log, only=only)
+    if only is not None and len(apac) and apac.success.any():
+        raise RuntimeError(f"{run}: a target that eval/grid.parquet records as failed was reached on re-running; "
+                           "the test is not deterministic or the checkpoint changed since it was evaluated")
     fails = describe_failures(apac, log, cfg.agent.delta_threshold, seeds)
     key = ["seed", "target_index"]
-    spac = frozen_test(run, "spac", limit=limit).set_index(key)["success"]
-    ddpg = frozen_test(run, "ddpg", limit=limit).set_index(key)["success"]
-    if len(fails):
-        idx = pd.MultiIndex.from_frame(fails[key])
-        fails["spac_reaches"] = spac.reindex(idx).to_numpy()
-        fails["ddpg_reaches"] = ddpg.reindex(idx).to_numpy()
-    per_seed = apac.groupby("seed").success.mean().rename("apac").to_frame()
-    per_seed["spac"] = spac.groupby(level="seed").mean()
-    per_seed["ddpg"] = ddpg.groupby(level="seed").mean()
+    failed_only = [np.sort(fails[fails.seed == s].target_index.to_numpy()) for s in seeds] if len(fails) else None
+    if failed_only is not None:
+        for name in ("spac", "ddpg"):
+            other = frozen_test(run, name, only=failed_only).set_index(key)["success"]
+            fails[f"{name}_reaches"] = other.reindex(pd.MultiIndex.from_frame(fails[key])).to_numpy()
+    full = pd.read_parquet(run / "eval" / "grid.parquet") if only is not None else apac
+    per_seed = full.groupby("seed").agg(apac_success=("success", "mean"), targets=("success", "size"))
     per_seed["failures"] = fails.groupby("seed").size() if len(fails) else 0
     per_seed = per_seed.fillna({"failures": 0})
     return {"run": str(run), "kind": cfg.agent.kind, "task": cfg.task, "precision": cfg.precision,
@@ -138,11 +166,10 @@ def main() -> None:
                                  formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
     ap.add_argument("runs", nargs="+", type=Path, help="APAC run directories (apac-mj train or grid cells)")
     ap.add_argument("--json", type=Path, default=None, help="write every number here")
-    ap.add_argument("--limit", type=int, default=0, help="only the first N targets per seed (quick checks; 0: all)")
     args = ap.parse_args()
     results = []
     for run in args.runs:
-        r = analyse(run, args.limit)
+        r = analyse(run)
         results.append(r)
         print(f"\n{run} ({r['kind']}, {r['task']}, {r['episodes']} episodes, {r['precision']}; "
               f"rule: habit iff |delta| < {r['delta_threshold']} from the third step)")
