@@ -24,9 +24,11 @@ Windows (training episodes; on/off/change: the task's schedule, N: the episodes 
   within that seed's ``before`` mean plus one standard deviation of its ``before`` episodes.
 * torque-driven arm (no event): ``late`` N-10..N-1. Every condition: ``last 30`` N-30..N-1.
 
-Frozen probes (``--history``, a folder of per-cell checkpoint copies ``<cell>/*.pt``): every agent as it was when
-the slowest seed had trained 110 (the event), 130 (curl: the field goes off) and N episodes, tested per seed on
-the same 100 grid targets with the field / load off and on (each seed's own episode at that checkpoint is listed).
+Frozen probes (``--history``, a folder of per-cell checkpoint copies ``<cell>/*.pt``): every seed of every agent as
+it was after 110 (the event), 130 (curl: the field goes off) and N training episodes, tested on the same 100 grid
+targets with the field / load off and on. The seeds train side by side and drift apart by a few episodes, and a
+checkpoint is written when the slowest reaches a multiple of checkpoint_every: each seed is probed in the checkpoint
+where it had trained the most episodes not past the moment (its episode there is listed as ``seed_episode``).
 
 Writes to ``--out``: ``learning.csv`` (per seed and episode), ``windows.csv`` (per seed and window), ``events.csv``
 (per window and quantity: mean, interval, per-seed values), ``effects.csv`` (the differences above, per seed then
@@ -249,10 +251,10 @@ def probe_moments(cond: str, schedule: dict[str, int], episodes: int) -> list[in
     return sorted({e for e in events if e >= 0} | {episodes})
 
 
-def frozen_test(cell: Path, checkpoint: Path, plant_changes: dict[str, Any],
-                limit: int | None = None) -> list[dict[str, Any]]:
-    """Every seed of the checkpoint's frozen agent on the 100 angle-grid targets (its own link lengths; the first
-    ``limit`` only if given), with the
+def frozen_test(cell: Path, checkpoint: Path, plant_changes: dict[str, Any], limit: int | None = None,
+                members: list[int] | None = None) -> list[dict[str, Any]]:
+    """Every member (or those listed, by index) of the checkpoint's frozen agent on the 100 angle-grid targets
+    (its own link lengths; the first ``limit`` only if given), with the
     task's plant changed by ``plant_changes``: per seed its episode at the checkpoint, success, relative error
     (mean hand-target distance over the path / the target's distance from the start pose), final distance,
     steps and habit share."""
@@ -274,11 +276,14 @@ def frozen_test(cell: Path, checkpoint: Path, plant_changes: dict[str, Any],
     agent = Agent(cfg.agent, list(cfg.seeds), geometry=Geometry.from_spec(spec), sizes=task_sizes(cfg))
     agent.load_state_dict(ckpt.agent)
     lengths = ckpt.member_lengths()
-    targets = [t[:limit] for t in evaluation_targets(spec, lengths, ckpt.member_targets())]
+    members = list(range(len(cfg.seeds))) if members is None else members
+    targets = [t[:limit] if k in members else t[:0]
+               for k, t in enumerate(evaluation_targets(spec, lengths, ckpt.member_targets()))]
     rows = pd.DataFrame(run_protocol(cfg, agent, spec, lengths, targets, occluded=False,
                                      running=ckpt.running_statistics()))
     out = []
-    for k, seed in enumerate(cfg.seeds):
+    for k in members:
+        seed = cfg.seeds[k]
         r = rows[rows.seed == seed]
         start = np.array([15.0 + lengths[k, 0] - lengths[k, 1], 15.0])
         start_distance = np.hypot(r.target_x - start[0], r.target_y - start[1])
@@ -293,47 +298,75 @@ def frozen_test(cell: Path, checkpoint: Path, plant_changes: dict[str, Any],
     return out
 
 
-def checkpoints_by_episode(cell: Path, history: Path) -> dict[int, Path]:
-    """The cell's saved checkpoints by the slowest seed's training episode (history copies and, for a finished
-    cell, its latest.pt)."""
+def saved_checkpoints(cell: Path, history: Path) -> dict[Path, list[int]]:
+    """The cell's saved checkpoints (history copies, then a finished cell's latest.pt) with every seed's
+    training episode in each; a checkpoint equal in episodes to an earlier one is left out."""
     import torch
 
     saved = sorted((history / cell.name).glob("*.pt"))
     if (cell / "DONE").is_file():
         saved.append(cell / "checkpoints" / "latest.pt")
-    at: dict[int, Path] = {}
+    out: dict[Path, list[int]] = {}
     for path in saved:
         loop = torch.load(path, weights_only=True, mmap=True, map_location="cpu")["loop"]
-        at.setdefault(int(min(int(e) for e in loop["episode"])), path)
-    return at
+        episodes = [int(e) for e in loop["episode"]]
+        if episodes not in out.values():
+            out[path] = episodes
+    return out
+
+
+def member_checkpoints(saved: dict[Path, list[int]], moment: int) -> dict[int, Path]:
+    """Per member (index) the checkpoint with the agent as it was after the most training episodes of that
+    member not past ``moment`` (the seeds run side by side and drift apart by a few episodes, a checkpoint is
+    written when the slowest reaches a multiple of checkpoint_every); members without one are left out."""
+    out: dict[int, Path] = {}
+    best: dict[int, int] = {}
+    for path, episodes in saved.items():
+        for k, e in enumerate(episodes):
+            if e <= moment and e > best.get(k, -1):
+                best[k], out[k] = e, path
+    return out
 
 
 def probes(grid: Path, history: Path, cache: Path, info: dict[tuple[str, str], dict[str, Any]],
            limit: int | None = None) -> pd.DataFrame:
-    """Per agent, condition, probe moment, plant setting (field / load off, on) and seed: :func:`frozen_test`
-    (``limit``: the first targets only). Results are cached as ``cache/<cell>/probe_<episode>_<setting>.json``
-    (``..._<limit>targets.json`` with a limit): a probe of 3 seeds x 100 targets costs minutes of CPU."""
+    """Per agent, condition, probe moment, plant setting (field / load off, on) and seed: :func:`frozen_test` of
+    the seed's checkpoint at the moment (:func:`member_checkpoints`; ``limit``: the first targets only). Results
+    are cached per checkpoint, setting and seed in ``cache/<cell>/<checkpoint>_<setting>[_<limit>targets].json``
+    (a probe of 3 seeds x 100 targets costs ~30 s of CPU)."""
     out = []
     for (agent, cond), cell in cell_dirs(grid).items():
         if cond not in PROBE_SETTINGS or (agent, cond) not in info:
             continue
-        at = checkpoints_by_episode(cell, history)
+        saved = saved_checkpoints(cell, history)
         for moment in probe_moments(cond, info[(agent, cond)]["schedule"], info[(agent, cond)]["episodes"]):
-            if moment not in at:
-                continue
-            for setting, changes in PROBE_SETTINGS[cond].items():
-                suffix = f"_{limit}targets" if limit else ""
-                path = cache / cell.name / f"probe_{moment}_{setting}{suffix}.json"
-                if path.is_file():
-                    result = json.loads(path.read_text())
-                else:
-                    print(f"probe {cell.name} after {moment}, {setting} ({at[moment].name})", flush=True)
-                    result = frozen_test(cell, at[moment], changes, limit)
-                    path.parent.mkdir(parents=True, exist_ok=True)
-                    path.write_text(json.dumps(result))
-                out += [{"agent": agent, "condition": cond, "after_episode": moment, "plant": setting, **r}
-                        for r in result]
-    return pd.DataFrame(out)
+            chosen = member_checkpoints(saved, moment)
+            by_checkpoint: dict[Path, list[int]] = {}
+            for k, path in sorted(chosen.items()):
+                by_checkpoint.setdefault(path, []).append(k)
+            for path, members in by_checkpoint.items():
+                for setting, changes in PROBE_SETTINGS[cond].items():
+                    result = _cached_probe(cell, path, members, setting, changes, cache, limit)
+                    out += [{"agent": agent, "condition": cond, "after_episode": moment, "plant": setting, **r}
+                            for r in result]
+    return pd.DataFrame(out).sort_values(["agent", "condition", "after_episode", "plant", "seed"]) if out \
+        else pd.DataFrame()
+
+
+def _cached_probe(cell: Path, checkpoint: Path, members: list[int], setting: str, changes: dict[str, Any],
+                  cache: Path, limit: int | None) -> list[dict[str, Any]]:
+    """:func:`frozen_test` of ``members`` of ``checkpoint``, from the cache where it has them."""
+    stem = "final" if checkpoint.parent.name == "checkpoints" else checkpoint.stem
+    path = cache / cell.name / f"{stem}_{setting}{f'_{limit}targets' if limit else ''}.json"
+    have = {int(k): v for k, v in json.loads(path.read_text()).items()} if path.is_file() else {}
+    todo = [k for k in members if k not in have]
+    if todo:
+        print(f"probe {cell.name} {checkpoint.name} members {todo}, {setting}", flush=True)
+        for k, r in zip(todo, frozen_test(cell, checkpoint, changes, limit, todo)):
+            have[k] = r
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps({str(k): v for k, v in sorted(have.items())}))
+    return [have[k] for k in members]
 
 
 def probe_effects(pr: pd.DataFrame, moments: dict[str, list[int]]) -> pd.DataFrame:

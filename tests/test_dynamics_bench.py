@@ -100,3 +100,12 @@ def test_recovery_episode_per_seed(dyn):
     summary = dyn.recovery_summary(rec.reset_index()).iloc[0]
     assert (summary.seeds, summary.recovered, summary.recovered_at_range) == (3, 2, "124-154")
     assert summary.recovered_at_mean == pytest.approx(139.0)
+
+
+def test_each_member_is_probed_at_its_own_checkpoint_not_past_the_moment(dyn):
+    # checkpoints when the slowest member reaches 100, 110, 120; member 1 runs ahead of the others
+    saved = {Path("a.pt"): [100, 107, 101], Path("b.pt"): [110, 118, 112], Path("c.pt"): [120, 131, 121]}
+    chosen = dyn.member_checkpoints(saved, 110)
+    assert chosen == {0: Path("b.pt"), 1: Path("a.pt"), 2: Path("a.pt")}
+    assert dyn.member_checkpoints(saved, 99) == {}
+    assert dyn.member_checkpoints(saved, 200) == {0: Path("c.pt"), 1: Path("c.pt"), 2: Path("c.pt")}
