@@ -318,14 +318,16 @@ def saved_checkpoints(cell: Path, history: Path) -> dict[Path, list[int]]:
 def member_checkpoints(saved: dict[Path, list[int]], moment: int) -> dict[int, Path]:
     """Per member (index) the checkpoint with the agent as it was after the most training episodes of that
     member not past ``moment`` (the seeds run side by side and drift apart by a few episodes, a checkpoint is
-    written when the slowest reaches a multiple of checkpoint_every); members without one are left out."""
+    written when the slowest reaches a multiple of checkpoint_every). A member that has no checkpoint at or past
+    ``moment`` yet (a cell still training) or none before it is left out."""
     out: dict[int, Path] = {}
     best: dict[int, int] = {}
     for path, episodes in saved.items():
         for k, e in enumerate(episodes):
             if e <= moment and e > best.get(k, -1):
                 best[k], out[k] = e, path
-    return out
+    reached = {k for episodes in saved.values() for k, e in enumerate(episodes) if e >= moment}
+    return {k: p for k, p in out.items() if k in reached}
 
 
 def probes(grid: Path, history: Path, cache: Path, info: dict[tuple[str, str], dict[str, Any]],
@@ -437,8 +439,8 @@ def figure(rows: pd.DataFrame, tests: pd.DataFrame, info: dict[tuple[str, str], 
             _mark_event(ax, schedule)
             ax.set_xlabel("training episode")
         ax_err.set_title(TITLES[cond])
-        ax_err.set_ylabel(f"relative error ({smooth}-episode mean)")
-        ax_err.set_ylim(bottom=0)
+        ax_err.set_ylabel(f"relative error ({smooth}-episode mean, log scale)")
+        ax_err.set_yscale("log")
         if ax_err.lines:
             ax_err.legend(loc="upper right")
         ax_habit.set_title("habit share (actor's actions / all)")

@@ -109,3 +109,7 @@ def test_each_member_is_probed_at_its_own_checkpoint_not_past_the_moment(dyn):
     assert chosen == {0: Path("b.pt"), 1: Path("a.pt"), 2: Path("a.pt")}
     assert dyn.member_checkpoints(saved, 99) == {}
     assert dyn.member_checkpoints(saved, 200) == {0: Path("c.pt"), 1: Path("c.pt"), 2: Path("c.pt")}
+    # a cell still training: no member has reached 130 yet, so nothing stands in for the agent after 130
+    assert dyn.member_checkpoints({Path("a.pt"): [100, 107, 101], Path("b.pt"): [110, 118, 112]}, 130) == {}
+    assert dyn.member_checkpoints({Path("a.pt"): [100, 107, 101], Path("b.pt"): [110, 118, 112]}, 115) == {
+        1: Path("a.pt")}  # only member 1 has trained past 115
