@@ -32,7 +32,7 @@ where it had trained the most episodes not past the moment (its episode there is
 
 Writes to ``--out``: ``learning.csv`` (per seed and episode), ``windows.csv`` (per seed and window), ``events.csv``
 (per window and quantity: mean, interval, per-seed values), ``effects.csv`` (the differences above, per seed then
-summarized), ``recovery.csv``, ``tests.csv``, ``probes.csv`` / ``probe_effects.csv`` (with --history) and
+summarized), ``recovery.csv``, ``tests.csv``, ``probes.csv`` / ``probe_summary.csv`` / ``probe_effects.csv`` (with --history) and
 ``fig_dynamics.png``; prints the tables as markdown.
 """
 from __future__ import annotations
@@ -423,6 +423,7 @@ def figure(rows: pd.DataFrame, tests: pd.DataFrame, info: dict[tuple[str, str], 
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import matplotlib.ticker  # noqa: F401  (matplotlib.ticker below)
 
     fig, axes = plt.subplots(len(CONDITIONS), 3, figsize=(16, 4.2 * len(CONDITIONS)), constrained_layout=True,
                              gridspec_kw={"width_ratios": [1.4, 1.4, 0.8]})
@@ -441,6 +442,8 @@ def figure(rows: pd.DataFrame, tests: pd.DataFrame, info: dict[tuple[str, str], 
         ax_err.set_title(TITLES[cond])
         ax_err.set_ylabel(f"relative error ({smooth}-episode mean, log scale)")
         ax_err.set_yscale("log")
+        ax_err.yaxis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
+        ax_err.yaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
         if ax_err.lines:
             ax_err.legend(loc="upper right")
         ax_habit.set_title("habit share (actor's actions / all)")
@@ -452,8 +455,7 @@ def figure(rows: pd.DataFrame, tests: pd.DataFrame, info: dict[tuple[str, str], 
 
 def _test_panel(ax: Any, tests: pd.DataFrame, cond: str) -> None:
     """Test success per agent: mean over seeds with its 95% interval, dots: the seeds."""
-    ax.set_title("test success, 100 grid targets\n(no load, no field; bar: mean, 95% interval; dots: seeds)",
-                 fontsize=9)
+    ax.set_title("test success, 100 grid targets, no load/field\nbar: mean, 95% interval; dots: seeds", fontsize=9)
     ax.set_ylim(0, 1)
     d = tests[tests.condition == cond] if len(tests) else tests
     if d.empty:
@@ -548,7 +550,8 @@ def main() -> None:
         if len(pr):
             quantities = ["success", "relative_error", "final_distance_cm", "steps", "habit_share"]
             section("frozen probes over seeds", summarize(pr, ["agent", "condition", "after_episode", "plant"],
-                                                          quantities, {"success": ("successes", "targets")}))
+                                                          quantities, {"success": ("successes", "targets")}),
+                    args.out / "probe_summary.csv")
             pe = probe_effects(pr, {c: probe_moments(c, v["schedule"], v["episodes"]) for (a, c), v in info.items()
                                     if c in PROBE_SETTINGS})
             section("frozen-probe effects (per seed, then over seeds)",
