@@ -442,6 +442,7 @@ def figure(rows: pd.DataFrame, tests: pd.DataFrame, info: dict[tuple[str, str], 
         ax_err.set_title(TITLES[cond])
         ax_err.set_ylabel(f"relative error ({smooth}-episode mean, log scale)")
         ax_err.set_yscale("log")
+        ax_err.yaxis.set_major_locator(matplotlib.ticker.LogLocator(subs=(1.0, 2.0, 5.0)))
         ax_err.yaxis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
         ax_err.yaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
         if ax_err.lines:
