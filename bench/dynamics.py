@@ -32,8 +32,8 @@ where it had trained the most episodes not past the moment (its episode there is
 
 Writes to ``--out``: ``learning.csv`` (per seed and episode), ``windows.csv`` (per seed and window), ``events.csv``
 (per window and quantity: mean, interval, per-seed values), ``effects.csv`` (the differences above, per seed then
-summarized), ``recovery.csv``, ``tests.csv``, ``probes.csv`` / ``probe_summary.csv`` / ``probe_effects.csv`` (with --history) and
-``fig_dynamics.png``; prints the tables as markdown.
+summarized), ``recovery.csv``, ``tests.csv``, ``probes.csv`` / ``probe_summary.csv`` / ``probe_effects.csv``
+(with --history) and ``fig_dynamics.png``; prints the tables as markdown.
 """
 from __future__ import annotations
 
@@ -46,14 +46,15 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from apac_mj.report.stats import bootstrap_interval, interval
+from apac_mj.report.stats import interval
 
 AGENTS = ("ddpg", "spac", "apac")
 CURL = "changing_target_compliant_curl_field"
 LOAD = "changing_target_compliant_load_change"
 TORQUE = "changing_target_torque"
 CONDITIONS = (CURL, LOAD, TORQUE)
-TITLES = {CURL: "compliant arm, curl field on (shaded)", LOAD: "compliant arm + gravity, 1 kg load from the dashed line",
+TITLES = {CURL: "compliant arm, curl field on (shaded)",
+          LOAD: "compliant arm + gravity, 1 kg load from the dashed line",
           TORQUE: "torque-driven arm (no event)"}
 COLORS = {"ddpg": "tab:orange", "spac": "tab:green", "apac": "tab:blue"}
 #: Per-seed window quantities (column in the training rows -> name in the tables); success is a rate.
@@ -559,7 +560,8 @@ def main() -> None:
                     summarize(pe, ["agent", "condition", "effect", "between"], quantities[:4])
                     if len(pe) else pe, args.out / "probe_effects.csv")
     print("\ntrained up to (slowest seed):",
-          {f"{a}__{c}": int(d.groupby("seed").episode.max().min()) for (a, c), d in rows.groupby(["agent", "condition"])}
+          {f"{a}__{c}": int(d.groupby("seed").episode.max().min())
+           for (a, c), d in rows.groupby(["agent", "condition"])}
           if len(rows) else {})
     print("cells done:", sorted(f"{a}__{c}" for (a, c), v in info.items() if v["done"]))
     print("missing cells:", missing)
