@@ -153,8 +153,13 @@ def _save(fig: plt.Figure, path: Path, title: str) -> Path:
     return path
 
 
+#: The narrowest figure (inches): one panel at 4.2 in cut its caption and labels.
+MIN_FIGURE_WIDTH = 6.4
+
+
 def _axes(nrows: int, ncols: int, w: float = 4.2, h: float = 3.4) -> np.ndarray:
-    fig, axes = plt.subplots(nrows, ncols, figsize=(w * ncols, h * nrows), squeeze=False, layout="constrained")
+    fig, axes = plt.subplots(nrows, ncols, figsize=(max(w * ncols, MIN_FIGURE_WIDTH), h * nrows), squeeze=False,
+                             layout="constrained")
     return axes
 
 
