@@ -16,6 +16,12 @@ from apac_mj.run.evaluate import evaluate
 from apac_mj.run.trainer import train
 
 FIXTURE = Path(__file__).resolve().parent / "fixtures" / "run_936695d"
+#: The fixture was written on an AVX2-only CPU; on an AVX-512 CPU the GEMM kernels sum in another order, so its
+#: floats come back equal only to float32 rounding (measured on a Xeon with AMX: relative differences <= 1e-7 in
+#: returns and distances after two more training episodes). Integer and boolean columns (steps, success, seeds)
+#: are compared exactly; a migration that restored a wrong weight, statistic or rule would change actions, and
+#: with them these numbers, by far more than this.
+FLOAT_TOLERANCE = {"check_exact": False, "rtol": 1e-5, "atol": 1e-6}
 
 
 def _stored() -> dict:
@@ -52,12 +58,12 @@ def test_an_old_run_evaluates_to_the_same_rows(run):
     evaluate(run, limit=6)
     for protocol in ("grid", "occluded"):
         pd.testing.assert_frame_equal(pd.read_parquet(run / "eval" / f"{protocol}.parquet"),
-                                      pd.read_parquet(FIXTURE / "eval" / f"{protocol}.parquet"), check_exact=True)
+                                      pd.read_parquet(FIXTURE / "eval" / f"{protocol}.parquet"), **FLOAT_TOLERANCE)
 
 
 def test_an_old_run_extends_with_the_numbers_of_its_release(run):
     cfg = train_config_from_dict({**_stored(), "episodes": 8})
     train(cfg, run, progress=False)
     pd.testing.assert_frame_equal(pd.read_parquet(run / "metrics.parquet"),
-                                  pd.read_parquet(FIXTURE / "expected_metrics_8_episodes.parquet"), check_exact=True)
+                                  pd.read_parquet(FIXTURE / "expected_metrics_8_episodes.parquet"), **FLOAT_TOLERANCE)
     assert json.loads((run / "config.json").read_text())["agent"]["kind"] == "apac_speed_accuracy"
