@@ -20,7 +20,7 @@ from apac_mj.agent.agent import Agent
 from apac_mj.config import AgentConfig, TrainConfig
 from apac_mj.kinematics import Geometry
 from apac_mj.recording.recording import RENDER, EpisodeRecorder, read_recording
-from apac_mj.run.rollout import EpisodeLoop, FunctionHook
+from apac_mj.run.rollout import EpisodeLoop, FunctionHook, Hook
 from apac_mj.run.run_dir import RunDir, config_dict, load_run, say, task_sizes, training_env
 from apac_mj.suite import spec_for
 from apac_mj.suite.render import write_video
@@ -55,10 +55,7 @@ def record(out: str | Path, run: str | Path | None = None, task: str | None = No
     env = rollout_env(cfg, seed, env_state)
     with EpisodeRecorder(out.parent, 1, config_dict(cfg), member=member, out=out,
                          keep_frames=video is not None) as recorder:
-        loop = EpisodeLoop(net, kinds.arbitrator_for(cfg.agent), env, hooks=[recorder], adapt=False)
-        loop.load_state_dict(running)
-        for k in tqdm(range(episodes), desc="record", unit="episode", disable=not progress):
-            loop.run_episode(np.ones(env.E, dtype=bool), first + k)
+        frozen_episodes(cfg, net, env, running, first, episodes, recorder, progress)
     if video is not None:
         write_video(video, recorder.frames, fps=fps)
     return Recorded(out, _frames(out), video, len(recorder.frames) if video is not None else 0)
@@ -73,16 +70,27 @@ def reached_targets(run: str | Path, episodes: int, as_episode: int | None = Non
     cfg, net, first, env_state, running = load_agent(run, None, None, 0, 0, as_episode)
     env = rollout_env(cfg, 0, env_state)
     reached = np.zeros((env.E, episodes), dtype=bool)
-    k = 0
 
     def on_step(info: Any, _: VecEnv) -> None:
         reached[:, k] |= info.done & info.reached
 
-    loop = EpisodeLoop(net, kinds.arbitrator_for(cfg.agent), env, hooks=[FunctionHook(on_step=on_step)], adapt=False)
-    loop.load_state_dict(running)
-    for k in range(episodes):
-        loop.run_episode(np.ones(env.E, dtype=bool), first + k)
+    def on_episode_start(members: np.ndarray, _: VecEnv) -> None:
+        nonlocal k
+        k += 1
+
+    k = -1
+    frozen_episodes(cfg, net, env, running, first, episodes, FunctionHook(on_step, on_episode_start), False)
     return reached
+
+
+def frozen_episodes(cfg: TrainConfig, net: Agent, env: VecEnv, running: dict[str, Any], first: int, episodes: int,
+                    hook: Hook, progress: bool) -> None:
+    """Roll out ``episodes`` frozen episodes of every member (no noise, no learning), the arbitrator seeing
+    training episodes ``first``, ``first + 1``, ...; ``hook`` (a :class:`apac_mj.run.rollout.Hook`) sees them."""
+    loop = EpisodeLoop(net, kinds.arbitrator_for(cfg.agent), env, hooks=[hook], adapt=False)
+    loop.load_state_dict(running)
+    for k in tqdm(range(episodes), desc="record", unit="episode", disable=not progress):
+        loop.run_episode(np.ones(env.E, dtype=bool), first + k)
 
 
 def showcase_member(reached: np.ndarray) -> int:
