@@ -25,8 +25,7 @@ import pandas as pd
 
 from apac_mj.experiments.results import load_results, load_tests
 from apac_mj.report.markdown import table_row
-from apac_mj.report.quantities import QUANTITIES, fmt, is_rate, key_numbers, per_seed
-from apac_mj.report.stats import newcombe_interval, paired_difference
+from apac_mj.report.quantities import QUANTITIES, fmt, key_numbers, per_seed, seed_difference
 from apac_mj.run.run_dir import RunDir
 
 QUANTITY_ORDER = ("train_success_late", "habit_fraction_late", "steps_late", "time_late", "test_success",
@@ -55,10 +54,7 @@ def compare(a: pd.DataFrame, b: pd.DataFrame) -> pd.DataFrame:
         q, agent, cond = key
         sa, sb = (s[(s.quantity == q) & (s.agent == agent) & (s.condition == cond)].set_index("seed")
                   for s in (a, b))
-        diff, lo, hi, paired = paired_difference(sb["value"], sa["value"])
-        if is_rate(q):
-            nlo, nhi = newcombe_interval(sb["k"].sum(), sb["n"].sum(), sa["k"].sum(), sa["n"].sum())
-            lo, hi = (100 * nlo, 100 * nhi) if math.isnan(lo) else (min(lo, 100 * nlo), max(hi, 100 * nhi))
+        diff, lo, hi, paired = seed_difference(q, sb, sa)
         rows.append({"quantity": q, "description": QUANTITIES[q][1], "unit": QUANTITIES[q][2], "agent": agent,
                      "condition": cond, "n_seeds": len(sa),
                      "a_mean": ka.loc[key, "mean"], "a_low": ka.loc[key, "ci95_low"], "a_high": ka.loc[key, "ci95_high"],

@@ -286,10 +286,7 @@ def _difference(seed_values: pd.DataFrame, q: str, one: tuple[str, str], other: 
     ra, rb = rows(a1, c1), rows(a2, c2)
     if ra.empty or rb.empty:
         return None
-    diff, lo, hi, paired = paired_difference(ra["value"], rb["value"])
-    if is_rate(q):  # widened to contain the pooled counts' Newcombe interval, as rates are in key_numbers
-        nlo, nhi = newcombe_interval(ra["k"].sum(), ra["n"].sum(), rb["k"].sum(), rb["n"].sum())
-        lo, hi = (100 * nlo, 100 * nhi) if math.isnan(lo) else (min(lo, 100 * nlo), max(hi, 100 * nhi))
+    diff, lo, hi, paired = seed_difference(q, ra, rb)
     return {"quantity": q, "description": QUANTITIES[q][1],
             "comparison": f"{AGENT_LABEL[a1]} {condition_short(c1)} - {AGENT_LABEL[a2]} {condition_short(c2)}",
             "unit": "points" if is_rate(q) else QUANTITIES[q][2],
@@ -297,6 +294,17 @@ def _difference(seed_values: pd.DataFrame, q: str, one: tuple[str, str], other: 
             "difference": diff, "ci95_low": lo, "ci95_high": hi,
             "interval": ("paired bootstrap over seeds" if paired else "bootstrap over seeds (unpaired)")
             + (" + Newcombe (pooled counts)" if is_rate(q) else "")}
+
+
+def seed_difference(q: str, a: pd.DataFrame, b: pd.DataFrame) -> tuple[float, float, float, bool]:
+    """``a - b`` of quantity ``q``'s per-seed rows (indexed by seed; ``value``, ``k``, ``n``): the paired
+    bootstrap interval over seeds, for a rate widened to contain the pooled counts' Newcombe interval, as
+    rates are in :func:`key_numbers`. Returns (difference, low, high, paired)."""
+    diff, lo, hi, paired = paired_difference(a["value"], b["value"])
+    if is_rate(q):
+        nlo, nhi = newcombe_interval(a["k"].sum(), a["n"].sum(), b["k"].sum(), b["n"].sum())
+        lo, hi = (100 * nlo, 100 * nhi) if math.isnan(lo) else (min(lo, 100 * nlo), max(hi, 100 * nhi))
+    return diff, lo, hi, paired
 
 
 def _rank(order: Sequence[str]) -> dict[str, int]:
