@@ -62,12 +62,12 @@ def _eval(rng: np.random.Generator, seeds, n_targets: int, with_path: bool) -> p
     return pd.DataFrame(rows)
 
 
-def make_results(root: Path, seed: int = 0, seeds=(0, 1, 2), episodes: int = 30) -> Path:
+def make_results(root: Path, seed: int = 0, seeds=(0, 1, 2), episodes: int = 30, preset_name: str = "smoke",
+                 conditions: str = "static_target,changing_target,changing_target_changing_kinematics") -> Path:
     """A results directory with every cell of a small grid filled with random contract-shaped data."""
     rng = np.random.default_rng(seed)
-    preset = load_preset("smoke", [f"seeds={list(seeds)}", f"episodes={episodes}",
-                                        "conditions=static_target,changing_target,changing_target_changing_kinematics",
-                                        "tests.generalization_conditions=static_target,changing_target"])
+    preset = load_preset(preset_name, [f"seeds={list(seeds)}", f"episodes={episodes}", f"conditions={conditions}",
+                                       "tests.generalization_conditions=static_target,changing_target"])
     for cell in grid.cells(preset):
         d = grid.prepare_cell(cell, preset, root)
         _metrics(rng, cell.agent, seeds, episodes).to_parquet(d / "metrics.parquet")
@@ -379,6 +379,27 @@ def test_old_results_without_losses_say_fig10_is_not_drawn(made, tmp_path) -> No
         pd.read_parquet(f).drop(columns=[c for c, _ in figures.LOSSES]).to_parquet(f)
     md = (report.write_report(copy, draw=False) / "report.md").read_text()
     assert "*Training losses per episode: not drawn, these results have no data for it.*" in md
+
+
+def test_a_generalization_only_grid_reports_fig8_and_skips_the_training_figures(tmp_path) -> None:
+    """The generalization preset has no main-study cells: its report draws Fig. 8 and says the training
+    figures have no data (it once stopped at Fig. 3 on an empty training table)."""
+    results = make_results(tmp_path / "gen", preset_name="generalization", conditions="", seeds=(0, 1), episodes=6)
+    assert not any(d.name.endswith(("__static_target", "__changing_target")) for d in results.iterdir())
+    assert main(["report", str(results), "--out", str(tmp_path / "report")]) == 0
+    out = tmp_path / "report"
+    assert sorted(p.name for p in out.glob("*.png")) == ["fig8_generalization.png"]
+    md = (out / "report.md").read_text()
+    for skipped in ("Training success rate per episode", "APAC habitual vs planning actions per episode",
+                    "Training losses per episode"):
+        assert f"*{skipped}: not drawn, these results have no data for it.*" in md
+    table = key_table(out)
+    gen = table[table["quantity"] == "generalization_success"]
+    assert set(gen["condition"]) == {"static_target", "changing_target"} and len(gen) == 6
+    tests = load_tests(results)
+    for _, row in gen.iterrows():
+        sel = tests[(tests["agent"] == row["agent"]) & (tests["condition"] == row["condition"])]
+        assert row["mean"] == pytest.approx(100 * sel.groupby("seed")["success"].mean().mean())
 
 
 @pytest.fixture

@@ -505,9 +505,16 @@ def fig_losses(data: ReportData, path: Path) -> Path:
                                           f"moving average over {episodes(w)}, mean over seeds)")
 
 
+def _has_training(data: ReportData) -> bool:
+    """The results hold main-study training episodes (a generalization-only grid holds none)."""
+    return not _train(data.metrics).empty
+
+
 def _has_losses(data: ReportData) -> bool:
-    """The metrics hold every loss column (results written before the losses were recorded do not)."""
-    return all(c in data.metrics and data.metrics[c].notna().any() for c, _ in LOSSES)
+    """Main-study training episodes whose metrics hold every loss column (results written before the losses
+    were recorded do not)."""
+    train = _train(data.metrics)
+    return not train.empty and all(c in train and train[c].notna().any() for c, _ in LOSSES)
 
 
 def _has(protocol: str) -> Callable[[ReportData], bool]:
@@ -516,12 +523,14 @@ def _has(protocol: str) -> Callable[[ReportData], bool]:
 
 #: The paper's figures (and two beyond it), in the order a report draws and lists them.
 PAPER_FIGURES = (
-    FigureSpec("fig3_training_success.png", "Training success rate per episode (paper Fig. 3).", fig_training_success),
+    FigureSpec("fig3_training_success.png", "Training success rate per episode (paper Fig. 3).", fig_training_success,
+               _has_training),
     FigureSpec("fig4_test.png", "Test success rate and steps to reach (paper Fig. 4).", fig_test, _has("grid")),
     FigureSpec("fig5_arbitration.png", "APAC habitual vs planning actions per episode (paper Fig. 5).",
-               fig_arbitration, lambda data: bool(arbitrating(data.metrics))),
+               fig_arbitration, lambda data: bool(arbitrating(_train(data.metrics)))),
     FigureSpec("fig6_steps_time.png",
-               f"Action steps and time per episode, planning = {PLANNING_COST}x habit (paper Fig. 6).", fig_steps_time),
+               f"Action steps and time per episode, planning = {PLANNING_COST}x habit (paper Fig. 6).", fig_steps_time,
+               _has_training),
     FigureSpec("fig7_trajectories.png", "Reaching trajectories to the test targets (paper Fig. 7).", fig_trajectories,
                _has("grid")),
     FigureSpec("fig8_generalization.png", "Held-out region and generalization success (paper Fig. 8).",
