@@ -558,3 +558,28 @@ def test_scoreboard_draws_float32_noise_as_zero_and_labels_each_bar(made, tmp_pa
             boxes = sorted((t.get_window_extent(renderer) for t in labels_), key=lambda b: b.x0)
             assert all(a.x1 <= b.x0 + 0.5 for a, b in zip(boxes, boxes[1:])), "count labels overlap"
     figures.plt.close("all")
+
+
+def test_several_results_directories_report_as_one(tmp_path, capsys) -> None:
+    """Cells of one study run as separate grids: `report A B --out R` equals the report of one directory
+    holding all the cells; a cell in two of them, or several directories without --out, is refused."""
+    import json
+    import shutil
+
+    results = make_results(tmp_path / "all", seeds=(0, 1), episodes=6)
+    a, b = tmp_path / "a", tmp_path / "b"
+    cells = sorted(d.name for d in results.iterdir() if (d / "cell.json").exists())
+    for i, name in enumerate(cells):
+        shutil.copytree(results / name, (a if i % 2 else b) / name)
+    (a / "manifest.json").write_text(json.dumps({"preset": {"name": "smoke", "description": "half the cells"}}))
+    both = report.write_report([a, b], tmp_path / "both", draw=False)
+    one = report.write_report(results, tmp_path / "one", draw=False)
+    pd.testing.assert_frame_equal(key_table(both), key_table(one))
+    pd.testing.assert_frame_equal(pd.read_csv(both / "differences.csv"), pd.read_csv(one / "differences.csv"))
+    assert "Read from 2 results directories, `a`: half the cells; `b`" in (both / "report.md").read_text()
+    shutil.copytree(results / cells[0], a / cells[0], dirs_exist_ok=True)  # now in both
+    assert main(["report", str(a), str(b), "--out", str(tmp_path / "dup")]) == 2
+    err = capsys.readouterr().err
+    assert f"the cell {cells[0]} is in two of the results directories given" in err and not (tmp_path / "dup").exists()
+    assert main(["report", str(a), str(b)]) == 2
+    assert "several results directories need --out" in capsys.readouterr().err

@@ -13,8 +13,13 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "with every key number, its 95% interval (bootstrap over seeds; rates also Wilson), the per-seed values, the "
                                    "count behind it, intervals of the key differences and the paper's "
                                    "stated value, into RESULTS_DIR/report/ (or --out).",
+                       epilog="examples:\n"
+                              "  apac-mj report results/fidelity\n"
+                              "  apac-mj report results/contested results/contested_cc --out reports/contested",
                        formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("results", metavar="RESULTS_DIR", help="a results directory written by apac-mj grid")
+    p.add_argument("results", metavar="RESULTS_DIR", nargs="+",
+                   help="a results directory written by apac-mj grid, or several read as one (cells of one study "
+                        "run as separate grids; each cell in only one of them; --out required)")
     p.add_argument("--out", default=None, help="where the figures and report.md go (default: RESULTS_DIR/report)")
     p.add_argument("--title", default=None, help="report title (default: from the grid's preset)")
     p.set_defaults(func=run)
@@ -23,7 +28,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from apac_mj.report import write_report
 
-    out = write_report(args.results, args.out, title=args.title)
+    results = args.results[0] if len(args.results) == 1 else args.results
+    out = write_report(results, args.out, title=args.title)
     print(f"report: {out / 'report.md'}")
     for f in sorted(out.glob("*.png")):
         print(f"figure: {f}")

@@ -6,6 +6,7 @@ region), ``metrics.parquet`` and ``eval/<protocol>.parquet``.
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -19,26 +20,51 @@ MANIFEST = "manifest.json"
 KEYS = ["agent", "condition", "region", "seed"]
 
 
-def cell_dirs(results: str | Path) -> list[Path]:
-    results = Path(results)
-    if not results.is_dir():
-        raise FileNotFoundError(f"results directory {results} does not exist")
-    return sorted(p.parent for p in results.glob(f"*/{CELL_FILE}"))
+#: One results directory, or several read as one (each cell in only one of them).
+Results = str | Path | Sequence[str | Path]
 
 
-def load_results(results: str | Path) -> pd.DataFrame:
+def result_roots(results: Results) -> list[Path]:
+    """``results`` as a list of directories (one path, or several)."""
+    return [Path(results)] if isinstance(results, (str, Path)) else [Path(r) for r in results]
+
+
+def cell_dirs(results: Results) -> list[Path]:
+    """The cells of one results directory, or of several; a cell (agent, condition, region) found in two of
+    them is an error naming both, since the report could not tell which to use."""
+    roots = result_roots(results)
+    if not roots:
+        raise ValueError("no results directory given")
+    for root in roots:
+        if not root.is_dir():
+            raise FileNotFoundError(f"results directory {root} does not exist")
+    dirs = [p.parent for root in roots for p in sorted(root.glob(f"*/{CELL_FILE}"))]
+    if len(roots) > 1:
+        seen: dict[tuple[str, str, str], Path] = {}
+        for d in dirs:
+            info = read_json(d / CELL_FILE) or {}
+            key = (info.get("agent"), info.get("condition"), info.get("region"))
+            if key in seen:
+                raise ValueError(f"the cell {d.name} is in two of the results directories given ({seen[key]} and "
+                                 f"{d}); give each cell once")
+            seen[key] = d
+    return dirs
+
+
+def load_results(results: Results) -> pd.DataFrame:
     """Every cell's metrics.parquet as one table keyed by agent, condition, region, seed, episode."""
     frames = []
     for d in cell_dirs(results):
         if RunDir(d).has_metrics():
             frames.append(_tag(RunDir(d).metrics(), read_json(d / CELL_FILE)))
     if not frames:
-        raise FileNotFoundError(f"no cell in {results} has a metrics.parquet yet")
+        where = ", ".join(str(r) for r in result_roots(results))
+        raise FileNotFoundError(f"no cell in {where} has a metrics.parquet yet")
     df = pd.concat(frames, ignore_index=True)
     return df.sort_values(KEYS + ["episode"], kind="stable").reset_index(drop=True)
 
 
-def load_tests(results: str | Path) -> pd.DataFrame:
+def load_tests(results: Results) -> pd.DataFrame:
     """Every cell's eval/<protocol>.parquet as one table keyed by agent, condition, region, protocol, seed, target_index."""
     frames = []
     for d in cell_dirs(results):

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import matplotlib
 
-from apac_mj.experiments.results import MANIFEST, load_results, load_tests
+from apac_mj.experiments.results import MANIFEST, Results, load_results, load_tests, result_roots
 from apac_mj.report.figures import FigureSpec, ReportData, register_figure, registered_figures, unregister_figure
 from apac_mj.report.labels import (AGENT_COLOR, AGENT_LABEL, check_kinds, condition_colors, condition_label,
                                    condition_short)
@@ -31,20 +31,24 @@ from apac_mj.report.quantities import QUANTITIES, differences, key_numbers, per_
 from apac_mj.util.files import read_json
 
 
-def write_report(results: str | Path, out: str | Path | None = None, title: str | None = None,
+def write_report(results: Results, out: str | Path | None = None, title: str | None = None,
                  draw: bool = True) -> Path:
     """Write every registered figure that applies (``draw=False``: none, the tables only), key_numbers.csv,
-    differences.csv and report.md into ``out`` (default: ``results/report``); returns the directory."""
-    results = Path(results)
-    metrics, tests = load_results(results), load_tests(results)
+    differences.csv and report.md into ``out`` (default: ``results/report``); returns the directory.
+    ``results``: one grid's results directory, or several read as one (e.g. cells of one preset run as
+    separate grids; each cell in only one of them, and ``out`` is then required)."""
+    roots = result_roots(results)
+    if len(roots) > 1 and out is None:
+        raise ValueError("several results directories need --out (the report's directory)")
+    metrics, tests = load_results(roots), load_tests(roots)
     check_kinds(metrics)  # before anything is written
-    out = Path(out) if out else results / "report"
+    out = Path(out) if out else roots[0] / "report"
     out.mkdir(parents=True, exist_ok=True)
     seed_values = per_seed(metrics, tests)
     table, diffs = key_numbers(seed_values), differences(seed_values)
     table.to_csv(out / "key_numbers.csv", index=False)
     diffs.to_csv(out / "differences.csv", index=False)
-    data = ReportData(results, metrics, tests, seed_values, table)
+    data = ReportData(roots[0], metrics, tests, seed_values, table)
     figures = [(spec, bool(spec.applies(data))) for spec in registered_figures()]
     if draw:
         matplotlib.use("Agg")  # the figures are files: no window, whatever the display
@@ -52,9 +56,25 @@ def write_report(results: str | Path, out: str | Path | None = None, title: str 
         (out / spec.file).unlink(missing_ok=True)  # a figure without data this time must not linger
         if applies and draw:
             spec.draw(data, out / spec.file)
-    manifest = read_json(results / MANIFEST) or {}
+    manifest = _manifest(roots)
     (out / "report.md").write_text(report_md(title, manifest, metrics, table, diffs, figures))
     return out
+
+
+def _manifest(roots: list[Path]) -> dict:
+    """The grid manifest of one results directory; for several, one whose preset name and description list
+    each directory's."""
+    manifests = [read_json(r / MANIFEST) or {} for r in roots]
+    if len(manifests) == 1:
+        return manifests[0]
+    presets = [m.get("preset", {}) for m in manifests]
+    names = list(dict.fromkeys(str(p.get("name", "grid")) for p in presets))
+    by_description: dict[str, list[str]] = {}
+    for root, preset in zip(roots, presets):
+        by_description.setdefault(str(preset.get("description", "")), []).append(f"`{root.name}`")
+    described = [", ".join(dirs) + (f": {d}" if d else "") for d, dirs in by_description.items()]
+    return {"preset": {"name": " + ".join(names),
+                       "description": f"Read from {len(roots)} results directories, " + "; ".join(described)}}
 
 
 __all__ = ["write_report", "ReportData", "FigureSpec", "register_figure", "unregister_figure", "AGENT_LABEL",
