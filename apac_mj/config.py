@@ -5,11 +5,16 @@ choice open, the field says so and ``docs/paper-mapping.md`` lists it.
 """
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 from typing import Any
 
 from apac_mj import rules
+
+
+#: The trained networks, in the paper's terms (the target actor and critic follow their online networks).
+TRAINED_NETWORKS = ("actor", "critic", "forward_model", "inverse_model")
 
 
 @dataclasses.dataclass
@@ -120,6 +125,12 @@ class AgentConfig:
     #: the online actor (standard DDPG, default).
     act_with_target_actor: bool = False
 
+    # -- reduced precision ------------------------------------------------------
+    #: Under ``precision = "bf16"``, the networks whose matrix products run in bf16 (a target network as
+    #: its online one); the others stay fp32. No effect in fp32. All four by default; leaving the inverse
+    #: model out is issue 19's test of where bf16's failure tail comes from (docs/results/precision).
+    bf16_networks: tuple[str, ...] = ("actor", "critic", "forward_model", "inverse_model")
+
     # -- rules and integrators beyond the paper (apac_mj/rules.py, docs/arbitrators.md) ----------
     #: Each rule's and integrator's own parameters, one table each (``agent.<table>.<field>``; apac_mj.rules).
     params: dict[str, Any] = dataclasses.field(default_factory=dict, metadata={"tables": True})
@@ -153,6 +164,10 @@ class AgentConfig:
             v = getattr(self, name)
             if v is not None and (isinstance(v, bool) or not low <= v <= high):
                 raise ValueError(f"{name} must be in [{low:g}, {high:g}], got {v!r}")
+        unknown = [n for n in self.bf16_networks if n not in TRAINED_NETWORKS]
+        if unknown or len(set(self.bf16_networks)) != len(self.bf16_networks):
+            raise ValueError(f"bf16_networks must be distinct names from {TRAINED_NETWORKS}, "
+                             f"got {list(self.bf16_networks)}")
         if self.ou_sigma < 0 or (self.ou_sigma_initial is not None and self.ou_sigma_initial < 0):
             raise ValueError("ou_sigma and ou_sigma_initial must be >= 0 degrees")
         if self.batch_size < 1 or self.replay_size < 1:
@@ -220,13 +235,20 @@ MOVED = {"arbitration_window": (("uncertainty", "window"), ("reliability", "wind
          "kalman_initial_process_var": (("kalman", "initial_process_var"),)}
 
 
+#: AgentConfig fields added after a release, with the value that behaves as that release did (JSON shape).
+ADDED = {"bf16_networks": list(TRAINED_NETWORKS)}
+
+
 def migrate(d: dict[str, Any]) -> dict[str, Any]:
     """A config dict (config.json, cell.json's run, a checkpoint's) of any release in today's shape:
-    ``agent.agent`` -> ``agent.kind``, the flat rule fields (:data:`MOVED`) -> their tables. Pure and
-    idempotent; every value is kept."""
+    ``agent.agent`` -> ``agent.kind``, the flat rule fields (:data:`MOVED`) -> their tables, fields added
+    since (:data:`ADDED`) at the value the release behaved as. Pure and idempotent; every value is kept."""
     agent = dict(d.get("agent", {}))
     if "agent" in agent:
         agent["kind"] = agent.pop("agent")
+    if agent:
+        for name, value in ADDED.items():
+            agent.setdefault(name, copy.deepcopy(value))
     for old, places in MOVED.items():
         if old in agent:
             value = agent.pop(old)

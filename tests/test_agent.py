@@ -327,3 +327,25 @@ def test_habit_distillation_pulls_actor_to_planner(normalize):
     gap_on = (on.actor_action(probe) - on.inverse_action(probe)).abs().mean()
     gap_off = (off.actor_action(probe) - off.inverse_action(probe)).abs().mean()
     assert gap_on < 0.5 * gap0 and gap_on < 0.5 * gap_off
+
+
+def test_bf16_networks_leaves_the_others_in_fp32():
+    """``bf16_networks`` without the inverse model: its loss and gradient are fp32's exactly while the
+    critic's, still in bf16, differ; with all four the inverse model's differ too (the same weights and data)."""
+    from tests.test_update import SMALL, _batch
+
+    batch = _batch(2, 64)
+    def grads(precision: str, nets=("actor", "critic", "forward_model", "inverse_model")):
+        agent = Agent(AgentConfig(**SMALL, bf16_networks=nets), [0, 1], precision=precision)
+        losses = agent.gradients(batch, [0, 1])
+        return losses, {n: [p.grad.clone() for p in getattr(agent, n).parameters()] for n in ("critic", "inverse_model")}
+
+    (ref, gref), (mixed, gmixed), (full, gfull) = grads("fp32"), grads("bf16", ("actor", "critic")), grads("bf16")
+    assert torch.equal(mixed["inverse"], ref["inverse"]) and torch.equal(mixed["forward"], ref["forward"])
+    assert all(torch.equal(a, b) for a, b in zip(gmixed["inverse_model"], gref["inverse_model"]))
+    assert not torch.equal(mixed["critic"], ref["critic"])
+    assert not all(torch.equal(a, b) for a, b in zip(gmixed["critic"], gref["critic"]))
+    assert not torch.equal(full["inverse"], ref["inverse"])
+    torch.testing.assert_close(full["inverse"], ref["inverse"], rtol=0.05, atol=0.05)
+    with pytest.raises(ValueError, match="bf16_networks"):
+        AgentConfig(bf16_networks=("actor", "inverse"))

@@ -133,6 +133,13 @@ class Agent:
             return torch.autocast(self.device.type, dtype=torch.bfloat16)
         return contextlib.nullcontext()
 
+    def _precision(self, net: str) -> contextlib.AbstractContextManager:
+        """Inside the update's autocast: fp32 for ``net`` (a target network counts as its online one) when
+        the update runs in bf16 but ``cfg.bf16_networks`` leaves it out; else no change."""
+        if self.precision == "bf16" and net not in self.cfg.bf16_networks:
+            return torch.autocast(self.device.type, enabled=False)
+        return contextlib.nullcontext()
+
     def _check(self, name: str, x: torch.Tensor, dim: int) -> torch.Tensor:
         x = torch.as_tensor(x, dtype=torch.float32, device=self.device)
         if tuple(x.shape) != (self.E, dim):
@@ -173,8 +180,10 @@ class Agent:
     def _target(self, r: torch.Tensor, s2: torch.Tensor, done: torch.Tensor) -> torch.Tensor:
         """TD target ``r + gamma (1 - done) Q'(s2, pi'(s2))``; ``[E,B]`` (s2 raw cm)."""
         x2 = self._pos(s2)
-        a2 = self.to_action(self.target_actor(x2).float(), s2)
-        q2 = self.target_critic(x2, self._act(a2)).float()
+        with self._precision("actor"):
+            a2 = self.to_action(self.target_actor(x2).float(), s2)
+        with self._precision("critic"):
+            q2 = self.target_critic(x2, self._act(a2)).float()
         return r + self.cfg.gamma * (1.0 - done) * q2
 
     # -- learning ----------------------------------------------------------------
@@ -226,20 +235,25 @@ class Agent:
         with torch.no_grad():
             y = self._target(b["reward"], s2, b["done"])
         x = self._pos(s)
-        q = self.critic(x, self._act(a)).float()
-        u = self.actor(x).float()
+        with self._precision("critic"):
+            q = self.critic(x, self._act(a)).float()
+        with self._precision("actor"):
+            u = self.actor(x).float()
         pi = self.to_action(u, s)
-        actor_loss = -self.critic(x, self._act(pi), detach=True).float().mean(1)
+        with self._precision("critic"):
+            actor_loss = -self.critic(x, self._act(pi), detach=True).float().mean(1)
         if cfg.habit_distillation_weight > 0:  # kinds that arbitrate only (apac_mj.kinds.check)
-            with torch.no_grad():
+            with torch.no_grad(), self._precision("inverse_model"):
                 plan = self.to_action(self.inverse_model(x[..., :6]).float(), s)
             distance = ((pi - plan) / cfg.action_scale).pow(2).sum(-1).mean(1)
             actor_loss = actor_loss + cfg.habit_distillation_weight * distance
         if cfg.feasibility_weight > 0:
             excess = (pi - self.executable(pi, s)) / cfg.action_scale
             actor_loss = actor_loss + cfg.feasibility_weight * excess.pow(2).sum(-1).mean(1)
-        arm_next = self.forward_model(torch.cat([x[..., :4], self._act(a)], -1)).float()
-        u_inv = self.inverse_model(torch.cat([x[..., :4], self._pos(s2[..., :2])], -1)).float()
+        with self._precision("forward_model"):
+            arm_next = self.forward_model(torch.cat([x[..., :4], self._act(a)], -1)).float()
+        with self._precision("inverse_model"):
+            u_inv = self.inverse_model(torch.cat([x[..., :4], self._pos(s2[..., :2])], -1)).float()
         return {"critic": (y - q).pow(2).mean(1),
                 "actor": actor_loss,
                 "forward": (arm_next - s2[..., :4]).pow(2).mean((1, 2)),
