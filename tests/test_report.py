@@ -263,8 +263,17 @@ def test_differences_of_the_key_comparisons(made) -> None:
     assert row["difference"] == pytest.approx(100 * (a - b).mean())
     assert -100 <= row["ci95_low"] <= row["difference"] <= row["ci95_high"] <= 100
     assert row["interval"].startswith("paired bootstrap")
-    assert set(diffs["quantity"]) == {"train_success_late", "test_success", "habit_fraction_late"}
+    assert set(diffs["quantity"]) == {"train_success_late", "test_success", "habit_fraction_late", "time_late",
+                                      "test_time"}
     assert "APAC cc - APAC ss" in set(diffs["comparison"])
+    row = diffs[(diffs["quantity"] == "test_success") & (diffs["comparison"] == "SPAC cs - DDPG cs")].iloc[0]
+    d = pd.read_parquet(results / "ddpg__changing_target" / "eval" / "grid.parquet").groupby("seed")["success"].mean()
+    assert row["difference"] == pytest.approx(100 * (b - d).mean())
+    row = diffs[(diffs["quantity"] == "test_time") & (diffs["comparison"] == "APAC cs - SPAC cs")].iloc[0]
+    ta = pd.read_parquet(results / "apac__changing_target" / "eval" / "grid.parquet").groupby("seed")["time_cost"].mean()
+    tb = pd.read_parquet(results / "spac__changing_target" / "eval" / "grid.parquet").groupby("seed")["time_cost"].mean()
+    assert row["difference"] == pytest.approx((ta - tb).mean()) and row["unit"] == "habit-step units"
+    assert row["ci95_low"] <= row["difference"] <= row["ci95_high"]
     assert "## Key differences" in (out / "report.md").read_text()
 
 

@@ -253,9 +253,11 @@ def key_numbers(seed_values: pd.DataFrame) -> pd.DataFrame:
 
 
 def differences(seed_values: pd.DataFrame) -> pd.DataFrame:
-    """Intervals of the key differences, per condition: each arbitrating kind (APAC) - each planning-only
-    kind (SPAC) training and test success, and each arbitrating kind's habit share in each condition
-    minus its share on the static target (percentage points)."""
+    """Intervals of the key differences, per condition, for the paper's claims: each arbitrating kind
+    (APAC) - each planning-only kind (SPAC) on training and test success ("as good as SPAC") and on time
+    per episode in training and on the test ("faster"); each kind that plans - each habit-only kind (DDPG)
+    on test success ("DDPG lowest"); each arbitrating kind's habit share in each condition minus its
+    share on the static target (percentage points)."""
     out = [_difference(seed_values, q, one, other) for q, one, other in _comparisons(seed_values)]
     return pd.DataFrame([row for row in out if row], columns=["quantity", "description", "comparison", "unit",
                                                                "n_seeds", "difference", "ci95_low", "ci95_high",
@@ -268,8 +270,11 @@ def _comparisons(seed_values: pd.DataFrame) -> list[tuple[str, tuple[str, str], 
     present = [a for a in kinds.names() if a in set(seed_values["agent"])]
     arbitrating_kinds = [a for a in present if kinds.get(a).arbitrates]
     planning_kinds = [a for a in present if not kinds.get(a).uses_habit]
-    pairs = [(q, (a, c), (b, c)) for q in ("train_success_late", "test_success") for c in conds
-             for a in arbitrating_kinds for b in planning_kinds]
+    habit_kinds = [a for a in present if not kinds.get(a).uses_planner]
+    pairs = [(q, (a, c), (b, c)) for q in ("train_success_late", "test_success", "time_late", "test_time")
+             for c in conds for a in arbitrating_kinds for b in planning_kinds]
+    pairs += [("test_success", (a, c), (d, c)) for c in conds for a in planning_kinds + arbitrating_kinds
+              for d in habit_kinds]
     pairs += [("habit_fraction_late", (a, c), (a, "static_target")) for c in conds if c != "static_target"
               for a in arbitrating_kinds]
     return pairs
