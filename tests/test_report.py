@@ -586,9 +586,15 @@ def test_several_results_directories_report_as_one(tmp_path, capsys) -> None:
     pd.testing.assert_frame_equal(key_table(both), key_table(one))
     pd.testing.assert_frame_equal(pd.read_csv(both / "differences.csv"), pd.read_csv(one / "differences.csv"))
     assert "Read from 2 results directories, `a`: half the cells; `b`" in (both / "report.md").read_text()
-    shutil.copytree(results / cells[0], a / cells[0], dirs_exist_ok=True)  # now in both
+    prepared = b / cells[1]  # a cell a stopped grid only prepared (cell.json, no metrics) gives way
+    prepared.mkdir()
+    shutil.copy(results / cells[1] / "cell.json", prepared / "cell.json")
+    again = report.write_report([a, b], tmp_path / "again", draw=False)
+    pd.testing.assert_frame_equal(key_table(again), key_table(one))
+    shutil.copytree(results / cells[0], a / cells[0], dirs_exist_ok=True)  # now with results in both
     assert main(["report", str(a), str(b), "--out", str(tmp_path / "dup")]) == 2
     err = capsys.readouterr().err
-    assert f"the cell {cells[0]} is in two of the results directories given" in err and not (tmp_path / "dup").exists()
+    assert f"the cell {cells[0]} has results in two of the results directories given" in err
+    assert not (tmp_path / "dup").exists()
     assert main(["report", str(a), str(b)]) == 2
     assert "several results directories need --out" in capsys.readouterr().err

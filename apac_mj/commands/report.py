@@ -28,8 +28,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from apac_mj.report import write_report
 
-    results = args.results[0] if len(args.results) == 1 else args.results
-    out = write_report(results, args.out, title=args.title)
+    out = write_report(args.results, args.out, title=args.title)
     print(f"report: {out / 'report.md'}")
     for f in sorted(out.glob("*.png")):
         print(f"figure: {f}")

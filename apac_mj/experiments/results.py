@@ -30,8 +30,9 @@ def result_roots(results: Results) -> list[Path]:
 
 
 def cell_dirs(results: Results) -> list[Path]:
-    """The cells of one results directory, or of several; a cell (agent, condition, region) found in two of
-    them is an error naming both, since the report could not tell which to use."""
+    """The cells of one results directory, or of several. Across several, a cell (agent, condition, region)
+    that holds metrics in two of them is an error naming both (the report could not tell which to use); one
+    that a grid only prepared (no metrics yet, e.g. a grid stopped before it) gives way to the other."""
     roots = result_roots(results)
     if not roots:
         raise ValueError("no results directory given")
@@ -39,16 +40,19 @@ def cell_dirs(results: Results) -> list[Path]:
         if not root.is_dir():
             raise FileNotFoundError(f"results directory {root} does not exist")
     dirs = [p.parent for root in roots for p in sorted(root.glob(f"*/{CELL_FILE}"))]
-    if len(roots) > 1:
-        seen: dict[tuple[str, str, str], Path] = {}
-        for d in dirs:
-            info = read_json(d / CELL_FILE) or {}
-            key = (info.get("agent"), info.get("condition"), info.get("region"))
-            if key in seen:
-                raise ValueError(f"the cell {d.name} is in two of the results directories given ({seen[key]} and "
-                                 f"{d}); give each cell once")
+    if len(roots) == 1:
+        return dirs
+    seen: dict[tuple[str, str, str], Path] = {}
+    for d in dirs:
+        info = read_json(d / CELL_FILE) or {}
+        key = (info.get("agent"), info.get("condition"), info.get("region"))
+        other = seen.get(key)
+        if other is not None and RunDir(other).has_metrics() and RunDir(d).has_metrics():
+            raise ValueError(f"the cell {d.name} has results in two of the results directories given ({other} "
+                             f"and {d}); give each cell once")
+        if other is None or not RunDir(other).has_metrics():
             seen[key] = d
-    return dirs
+    return list(seen.values())
 
 
 def load_results(results: Results) -> pd.DataFrame:
