@@ -10,14 +10,26 @@ import dataclasses
 import math
 from typing import Any
 
+import numpy as np
+
 from apac_mj import rules
+from apac_mj.util.overrides import MAX_SEEDS, SEED_LIMIT
 
 
 #: The trained networks, in the paper's terms (the target actor and critic follow their online networks).
 TRAINED_NETWORKS = ("actor", "critic", "forward_model", "inverse_model")
+#: The numeric precisions a run computes in; a request may also say "auto" (apac_mj.agent.precision).
+PRECISIONS = ("fp32", "bf16")
+PRECISION_REQUESTS = (*PRECISIONS, "auto")
+#: How the arm is driven: MuJoCo position servos, or joint angles written directly.
+ACTUATIONS = ("servo", "kinematic")
+#: Where the networks run ("cuda:N" names one GPU).
+DEVICES = ("cpu", "cuda")
+#: At most this many training episodes per seed (and checkpoint interval).
+MAX_EPISODES = 10**9
 
 
-@dataclasses.dataclass
+@dataclasses.dataclass(frozen=True)
 class AgentConfig:
     """The agent: habit system (DDPG), planning system, arbitrator, integrator."""
 
@@ -172,7 +184,7 @@ class AgentConfig:
             raise ValueError("ou_sigma and ou_sigma_initial must be >= 0 degrees")
         if self.batch_size < 1 or self.replay_size < 1:
             raise ValueError("batch_size and replay_size must be >= 1")
-        self.params = rules.resolve(self.params)
+        object.__setattr__(self, "params", rules.resolve(self.params))  # frozen: the one completion
 
 
 #: (field, low, high) of AgentConfig's numbers beyond finiteness: degrees within a turn, weights and
@@ -185,9 +197,12 @@ _RANGES = (("action_scale", 1e-6, 360.0), ("babbling_scale", 0.0, 360.0), ("ou_s
            ("replay_size", 1, 10**10))
 
 
-@dataclasses.dataclass
+@dataclasses.dataclass(frozen=True)
 class TrainConfig:
-    """A training run: which task, how many seeds and episodes, where outputs go."""
+    """A training run: which task, how many seeds and episodes, where outputs go. Frozen: a changed copy
+    is ``dataclasses.replace(cfg, episodes=...)``. Checked when made (:meth:`__post_init__`); what only a
+    machine can tell (a GPU, memory, that the task resolves) is checked where a run is built
+    (:func:`apac_mj.run.build.check`)."""
 
     #: Task name (a file in tasks/).
     task: str = "changing_target"
@@ -195,18 +210,47 @@ class TrainConfig:
     seeds: tuple[int, ...] = (0,)
     #: Training episodes per seed (after babbling).
     episodes: int = 1000
-    #: "cpu" or "cuda".
+    #: "cpu" or "cuda" (or "cuda:N"; DEVICES).
     device: str = "cpu"
     #: "fp32" (reference) or "bf16" (autocast of the matrix products); "auto": bf16 where the hardware
     #: has bf16 dot products, else fp32 (apac_mj.agent.precision), resolved before the run starts.
     precision: str = "fp32"
     #: Save a checkpoint every this many episodes (of the slowest seed).
     checkpoint_every: int = 50
-    #: Arm actuation: "servo" (MuJoCo position servos) or "kinematic".
+    #: Arm actuation: "servo" (MuJoCo position servos) or "kinematic" (ACTUATIONS).
     actuation: str = "servo"
     #: TaskSpec fields that replace the task file's (e.g. {"at_limit": "unbounded"}); empty: the file as it is.
     task_overrides: dict[str, Any] = dataclasses.field(default_factory=dict)
     agent: AgentConfig = dataclasses.field(default_factory=AgentConfig)
+
+    def __post_init__(self) -> None:
+        """Every field checked (a ValueError naming it); what needs the machine or the task files is
+        :func:`apac_mj.run.build.check`'s."""
+        if not self.seeds:
+            raise ValueError("at least one seed is needed")
+        if len(self.seeds) > MAX_SEEDS:
+            raise ValueError(f"{len(self.seeds)} seeds: at most {MAX_SEEDS} fit in one run (each is an ensemble "
+                             "member with its own networks); split them over several runs")
+        if (any(isinstance(s, bool) or not isinstance(s, (int, np.integer)) or not 0 <= s < SEED_LIMIT
+                for s in self.seeds) or len(set(self.seeds)) != len(self.seeds)):
+            raise ValueError(f"seeds must be distinct integers in [0, 2^32), got {_short(list(self.seeds))}")
+        for name in ("episodes", "checkpoint_every"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 1 <= value <= MAX_EPISODES:
+                raise ValueError(f"{name} must be an integer in [1, {MAX_EPISODES}], got {value!r}")
+        if not isinstance(self.device, str) or (self.device not in DEVICES and not self.device.startswith("cuda:")):
+            raise ValueError(f"device must be one of {DEVICES} (or 'cuda:N'), got {self.device!r}")
+        if self.precision not in PRECISION_REQUESTS:  # auto: resolved by the trainer before the run starts
+            raise ValueError(f"precision must be one of {PRECISION_REQUESTS}, got {self.precision!r}")
+        if self.actuation not in ACTUATIONS:
+            raise ValueError(f"actuation must be one of {ACTUATIONS}, got {self.actuation!r}")
+        if not isinstance(self.agent, AgentConfig):
+            raise ValueError(f"agent must be an AgentConfig, got {type(self.agent).__name__}")
+
+
+def _short(values: list[Any], n: int = 10) -> str:
+    """A list for a message, at most ``n`` entries shown."""
+    return str(values) if len(values) <= n else f"[{', '.join(map(str, values[:n]))}, ... ({len(values)} in all)]"
 
 
 def to_dict(cfg: TrainConfig) -> dict[str, Any]:

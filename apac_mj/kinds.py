@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Callable
 
 from apac_mj import rules
 from apac_mj.rules import ReliabilityParams, SpeedAccuracyParams, UncertaintyParams, VisionAwareParams
+from apac_mj.util.registry import Registry
 
 if TYPE_CHECKING:
     from apac_mj.config import AgentConfig
@@ -79,40 +80,36 @@ class AgentKind:
         return self.uses_habit and self.uses_planner
 
 
-_KINDS: dict[str, AgentKind] = {}
+_KINDS: Registry[AgentKind] = Registry(
+    "agent kind", error=UnknownKindError,
+    unknown="unknown agent kind {name!r}; registered kinds: {names} (apac_mj.kinds.register adds one)")
 
 
 def register(kind: AgentKind, replace: bool = False) -> AgentKind:
     """Add ``kind`` (and its parameter table) to the registry (after the kinds already there); a taken name
     needs ``replace=True``."""
-    if kind.name in _KINDS and not replace:
-        raise ValueError(f"agent kind {kind.name!r} is already registered (pass replace=True to redefine it)")
+    if not replace:
+        _KINDS.check_new(kind.name)
     if kind.params is not None:
         rules.register(kind.params)
-    _KINDS[kind.name] = kind
-    return kind
+    return _KINDS.replace(kind.name, kind)
 
 
 def unregister(name: str) -> None:
     """Remove a kind registered at run time (tests, notebooks); the built-in ones stay."""
     if name in BUILTIN:
         raise ValueError(f"the built-in agent kind {name!r} cannot be removed")
-    get(name)
-    del _KINDS[name]
+    _KINDS.unregister(name)
 
 
 def get(name: str) -> AgentKind:
     """The registered kind ``name``; an unknown name is an error listing the known ones."""
-    try:
-        return _KINDS[name]
-    except (KeyError, TypeError):
-        raise UnknownKindError(f"unknown agent kind {name!r}; registered kinds: {', '.join(_KINDS)} "
-                               "(apac_mj.kinds.register adds one)") from None
+    return _KINDS.get(name)
 
 
 def names() -> tuple[str, ...]:
     """Every registered kind's name, in registration order (the built-in ones first)."""
-    return tuple(_KINDS)
+    return _KINDS.names()
 
 
 def check(cfg: AgentConfig) -> None:

@@ -7,18 +7,21 @@ command line and preset files reach a field as ``agent.<table>.<field>`` (``--se
 agent.uncertainty.window=50``, ``[agent.kalman]``). A new rule brings its own table and registers it
 (:func:`register`, or ``apac_mj.kinds.AgentKind(params=...)``); nothing else changes.
 
-This module is torch-free and imports nothing from the package: the configuration (below the agent)
-builds every table, the rules (in ``apac_mj.agent``) read theirs.
+This module is torch-free and imports nothing from the package but the registry (:mod:`apac_mj.util.registry`):
+the configuration (below the agent) builds every table, the rules (in ``apac_mj.agent``) read theirs.
 """
 from __future__ import annotations
 
 import dataclasses
 from typing import Any, ClassVar
 
+from apac_mj.util.registry import Registry
+
 #: The default agent kind: the paper's APAC (``apac_mj.kinds`` registers it).
 DEFAULT_KIND = "apac"
 
-_TABLES: dict[str, type] = {}
+_TABLES: Registry[type] = Registry("parameter table",
+                                   duplicate="{what} {name!r} is already registered ({item.__qualname__})")
 
 
 def register(cls: type) -> type:
@@ -28,15 +31,14 @@ def register(cls: type) -> type:
     if not dataclasses.is_dataclass(cls) or not isinstance(name, str) or not name.isidentifier():
         raise ValueError(f"a parameter table must be a dataclass with a class attribute table = '<name>', "
                          f"got {cls!r}")
-    if _TABLES.get(name, cls) is not cls:
-        raise ValueError(f"parameter table {name!r} is already registered ({_TABLES[name].__qualname__})")
-    _TABLES[name] = cls
-    return cls
+    if name in _TABLES and _TABLES.get(name) is cls:
+        return cls
+    return _TABLES.register(name, cls)
 
 
 def tables() -> dict[str, type]:
     """Every registered table: name -> dataclass."""
-    return dict(_TABLES)
+    return dict(_TABLES.items())
 
 
 def resolve(given: dict[str, Any]) -> dict[str, Any]:

@@ -1,4 +1,5 @@
-"""The records and contracts that cross layers: what the plant shows (:class:`Observation`), what an
+"""The records and contracts that cross layers: the agent's state layout (:data:`END`, :data:`TARGET`, ...),
+what the plant shows (:class:`Observation`), what an
 arbitrator sees (:class:`ArbitrationContext`) and decides (:class:`Decision`), what every step did
 (:class:`StepInfo`); the time cost of an action; and the extension points' base classes
 (:class:`Arbitrator`, :class:`Integrator`) and what the episode loop calls on an agent (:class:`Policy`).
@@ -12,17 +13,46 @@ from __future__ import annotations
 
 import abc
 import dataclasses
-from typing import TYPE_CHECKING, Any, Callable, NamedTuple, Protocol
+from typing import TYPE_CHECKING, Callable, NamedTuple, Protocol
 
 import numpy as np
 
 if TYPE_CHECKING:
     import torch
 
+    from apac_mj.agent.noise import OUNoise
     from apac_mj.config import AgentConfig
+    from apac_mj.kinematics import Sizes
 
 #: Time cost of one action of each controller (the paper's Fig. 6: planning three times slower than a habit).
 PLANNING_COST, HABIT_COST = 3, 1
+#: The agent's four losses (``Agent.update``), in the order of metrics.parquet's ``<name>_loss`` columns.
+LOSSES = ("critic", "actor", "forward", "inverse")
+
+# -- the agent's state ---------------------------------------------------------------------------
+# The state the agent acts and learns on (``StepInfo.state``, ``ArbitrationContext.state``, the replay
+# memory) is ``[E, 6 + extra]`` (cm), laid out
+#
+#     [end_x, end_y, elbow_x, elbow_y, target_x, target_y, extra...]
+#
+# the positions (the integrator's estimate) followed by the task's extra observations, read as they are
+# every step (``VecEnv.extra``: e.g. joint velocities on ``changing_target_torque``; none on the paper's
+# tasks). Read it through these names, on the last axis (``state[:, TARGET]``, ``s[..., ARM]``), never by
+# position. ``[end, elbow]`` arrays (``StepInfo.true_arm``, ``predicted_arm``) share the first four.
+#: The end effector (hand).
+END = slice(0, 2)
+#: The elbow.
+ELBOW = slice(2, 4)
+#: The arm: ``[end, elbow]`` (what the forward model predicts).
+ARM = slice(0, 4)
+#: The target.
+TARGET = slice(4, 6)
+#: The positions: ``[end, elbow, target]`` (what the integrator estimates).
+POSITIONS = slice(0, 6)
+#: The task's extra observations (empty on the paper's tasks).
+EXTRA = slice(6, None)
+#: Width of the positions; the state is ``POSITION_DIM + extra`` wide.
+POSITION_DIM = 6
 
 
 @dataclasses.dataclass
@@ -62,14 +92,17 @@ class ArbitrationContext:
     vision: torch.Tensor | None = None
     #: Forward model's error (cm, Euclidean over end and elbow) at the member's last seen step; NaN: none yet.
     forward_error: torch.Tensor | None = None
-    #: The integrator's state the agent acts on ``[E, 6]`` (on the agent's device); None if not given.
+    #: The state the agent acts on ``[E, 6 + extra]`` (the integrator's estimate, then the task's extra
+    #: observations; read it through :data:`END`, :data:`TARGET`, ...; on the agent's device); None if not given.
     state: torch.Tensor | None = None
     #: The actor's proposal ``[E, 2]`` (degrees, no noise) in ``state``; None if not given.
     habit_action: torch.Tensor | None = None
     #: The forward model as a checker: action ``[E, 2]`` -> predicted end effector ``[E, 2]`` after it
     #: (from ``state``); None if not given.
     predict_end: Callable[[torch.Tensor], torch.Tensor] | None = None
-    #: Radius of the target zone (cm) the agent judges its estimate by.
+    #: Radius of the target zone (cm) the agent judges its estimate by. The episode loop always passes the
+    #: task's (``EpisodeLoop.zone_radius``, owned by ``TaskSpec.zone_radius``); the default, the paper's 0.5,
+    #: is only for contexts built by hand (tests, a rule tried alone).
     zone_radius: float = 0.5
 
     def __post_init__(self) -> None:
@@ -109,7 +142,7 @@ class StepInfo:
     episode: np.ndarray        # [E] int: training episode (babbling: negative)
     step: np.ndarray           # [E] int: step within the episode at which the action was taken (0-based)
     active: np.ndarray         # [E] bool: the member stepped
-    state: np.ndarray          # [E, 6] the integrator's state the agent acted on [end, elbow, target]
+    state: np.ndarray          # [E, 6 + extra] the state the agent acted on [end, elbow, target, extra] (END, ...)
     true_arm: np.ndarray       # [E, 4] MuJoCo's arm after the step [end, elbow]
     target: np.ndarray         # [E, 2] the true target
     action: np.ndarray         # [E, 2] commanded action (joint-angle changes, degrees; the plant clips it)
@@ -123,12 +156,27 @@ class StepInfo:
     vision: np.ndarray         # [E] bool: the arm and target were seen after the step
     joint_angles: np.ndarray   # [E, 2] after the step
     link_lengths: np.ndarray   # [E, 2] after the step
-    next_state: np.ndarray     # [E, 6] the integrator's state after the step (s_{t+1})
+    next_state: np.ndarray     # [E, 6 + extra] the state after the step (s_{t+1}), laid out as ``state``
     terminal: np.ndarray       # [E] bool: the transition is terminal for learning (perceived reach)
     zone_radius: float         # radius (cm) of the target zone the agent judged ``terminal`` by
     #: The arbitrator's decision inputs at this step, ``name -> [E]`` (:attr:`Decision.inputs`; empty for
     #: rules without inputs): what recordings show as "why".
     arbitration: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
+    #: The same step in the learner's form, on the agent's device (the tensors the numpy fields above were
+    #: copied from once): what the trainer stores and the episode loop carries, so that the step's data
+    #: makes no round trip through the host. None: a record built by hand (hooks need only the numpy).
+    tensors: StepTensors | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class StepTensors:
+    """A step's learner-side data, ``[E, ...]`` tensors on the agent's device (float32; ``terminal`` bool)."""
+
+    state: torch.Tensor       # [E, 6 + extra] s_t, the estimate acted on
+    action: torch.Tensor      # [E, 2] the command (after the arbitrator, noise, bounds and any override)
+    reward: torch.Tensor      # [E] the reward learned from
+    next_state: torch.Tensor  # [E, 6 + extra] s_{t+1}
+    terminal: torch.Tensor    # [E] bool
 
 
 class Decision(NamedTuple):
@@ -166,7 +214,8 @@ class Arbitrator(abc.ABC):
 
 
 class Integrator(abc.ABC):
-    """Makes the state estimate the agent acts and learns on, ``[E, 6]`` (``apac_mj.agent.integrator``).
+    """Makes the estimate of the state's positions (:data:`POSITIONS`, ``[E, 6]``) the agent acts and learns on
+    (``apac_mj.agent.integrator``); the task's extra observations pass it by.
 
     The estimate itself is carried by the caller (``prior_state`` in, next estimate out); an integrator
     keeps only what it learns (:meth:`state_dict`).
@@ -183,12 +232,12 @@ class Integrator(abc.ABC):
         self.E, self.device = E, torch.device(device)
 
     @abc.abstractmethod
-    def reset(self, mask: Any, seen_state: torch.Tensor) -> None:
+    def reset(self, mask: np.ndarray | torch.Tensor, seen_state: torch.Tensor) -> None:
         """Start new episodes for the members in ``mask`` ``[E]`` from ``seen_state`` ``[E, 6]``."""
 
     @abc.abstractmethod
     def update(self, prior_state: torch.Tensor, predicted_arm: torch.Tensor, observed_state: torch.Tensor,
-               vision: Any, active: Any) -> torch.Tensor:
+               vision: np.ndarray | torch.Tensor, active: np.ndarray | torch.Tensor) -> torch.Tensor:
         """The next estimate ``[E, 6]`` from the estimate acted on, the forward model's prediction ``[E, 4]``
         and the observation ``[E, 6]`` (``vision`` ``[E]``: seen); rows of inactive members unchanged."""
 
@@ -207,14 +256,14 @@ class Policy(Protocol):
 
     cfg: AgentConfig  # the exploration schedule (``ou_sigma_at``)
     device: torch.device
-    noise: Any  # the exploration noise (``apac_mj.agent.noise.OUNoise``): ``reset(mask)``, ``sample(active, sigma)``
-    sizes: Any  # the task's sizes (``apac_mj.kinematics.Sizes``): state and action dimensions, action bound
+    noise: OUNoise  # the exploration noise: ``reset(mask)``, ``sample(active, sigma)``
+    sizes: Sizes  # the task's sizes: state and action dimensions, action bound
 
     def actor_action(self, state: torch.Tensor) -> torch.Tensor:
-        """Habit proposal ``[E, 6] -> [E, 2]`` degrees (no noise)."""
+        """Habit proposal ``[E, 6 + extra] -> [E, 2]`` degrees (no noise)."""
 
     def inverse_action(self, state: torch.Tensor) -> torch.Tensor:
-        """Planning proposal ``[E, 6] -> [E, 2]`` degrees (no noise)."""
+        """Planning proposal ``[E, 6 + extra] -> [E, 2]`` degrees (no noise; from the positions)."""
 
     def executable(self, a: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
         """The part of command ``a`` ``[E, 2]`` the plant can execute from the pose in ``s``."""

@@ -35,8 +35,8 @@ import pandas as pd
 
 from apac_mj.run.evaluate import evaluation_targets, run_protocol
 from apac_mj.run.rollout import Hook
-from apac_mj.run.run_dir import load_run
-from apac_mj.suite import spec_for
+from apac_mj.run.build import load_run
+from apac_mj.run.run_dir import RunDir
 
 LAST = 10  # steps at the end of a failed episode that "who acted" and "how far it moved" look at
 
@@ -64,10 +64,10 @@ def frozen_test(run: Path, kind: str | None = None, log: StepLog | None = None,
     """The run's frozen angle-grid test (as ``apac-mj evaluate``), arbitrated as ``kind`` (default: the run's);
     ``only``: per member, the indices of the targets to run (the episodes are deterministic, so a subset
     runs exactly as in the full test). ``target_index`` is the index in the member's full target list."""
-    cfg, agent, ckpt = load_run(run, device="cpu")
+    loaded = load_run(run, device="cpu")
+    cfg, agent, ckpt, spec = loaded.cfg, loaded.agent, loaded.ckpt, loaded.spec
     if kind is not None:
         cfg = dataclasses.replace(cfg, agent=dataclasses.replace(cfg.agent, kind=kind))
-    spec = spec_for(cfg)
     lengths = ckpt.member_lengths()
     targets = evaluation_targets(spec, lengths, ckpt.member_targets())
     only = [np.arange(len(t)) for t in targets] if only is None else only
@@ -120,7 +120,7 @@ def describe_failures(tests: pd.DataFrame, log: StepLog, threshold: float, seeds
 def analyse(run: Path) -> dict[str, Any]:
     """The failed episodes of the run's frozen test, re-run step by step, and the counterfactual controllers
     on exactly those targets. Uses the run's ``eval/grid.parquet`` to find them (else runs every target)."""
-    cfg, _, _ = load_run(run, device="cpu")
+    cfg = RunDir(run).train_config()
     seeds = list(cfg.seeds)
     only = failed_targets(run, seeds)
     log = StepLog()

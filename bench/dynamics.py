@@ -263,25 +263,24 @@ def frozen_test(cell: Path, checkpoint: Path, plant_changes: dict[str, Any], lim
 
     import torch
 
-    from apac_mj.agent.agent import Agent
-    from apac_mj.kinematics import Geometry
-    from apac_mj.run.evaluate import evaluation_targets, run_protocol
-    from apac_mj.run.run_dir import RunCheckpoint, RunDir, task_sizes
+    from apac_mj.run.build import loaded_agent
+    from apac_mj.run.evaluate import eval_env, evaluation_targets, run_protocol
+    from apac_mj.run.run_dir import RunCheckpoint, RunDir
     from apac_mj.suite import spec_for
 
     cfg = RunDir(cell).train_config()
-    plant = dataclasses.replace(spec_for(cfg).plant, **plant_changes)
-    cfg = dataclasses.replace(cfg, task_overrides={**cfg.task_overrides, "plant": plant})
     spec = spec_for(cfg)
+    spec = spec.replace(plant=dataclasses.replace(spec.plant, **plant_changes))
+    cfg = dataclasses.replace(cfg, task_overrides={**cfg.task_overrides, "plant": spec.plant})
     ckpt = RunCheckpoint(torch.load(checkpoint, weights_only=True), Path(checkpoint))
-    agent = Agent(cfg.agent, list(cfg.seeds), geometry=Geometry.from_spec(spec), sizes=task_sizes(cfg))
-    agent.load_state_dict(ckpt.agent)
+    env = eval_env(cfg, spec, None, occluded=False)
+    agent = loaded_agent(cfg, spec, env.sizes, ckpt.agent)
     lengths = ckpt.member_lengths()
     members = list(range(len(cfg.seeds))) if members is None else members
     targets = [t[:limit] if k in members else t[:0]
                for k, t in enumerate(evaluation_targets(spec, lengths, ckpt.member_targets()))]
     rows = pd.DataFrame(run_protocol(cfg, agent, spec, lengths, targets, occluded=False,
-                                     running=ckpt.running_statistics()))
+                                     running=ckpt.running_statistics(), env=env))
     out = []
     for k in members:
         seed = cfg.seeds[k]

@@ -28,8 +28,8 @@ import pandas as pd
 import torch
 
 import apac_mj  # noqa: F401  (sets MUJOCO_GL)
-from apac_mj.commands.train import agent_overrides
-from apac_mj.config import AgentConfig, TrainConfig
+from apac_mj.config import ACTUATIONS, AgentConfig, TrainConfig
+from apac_mj.experiments.presets import agent_overrides
 from apac_mj.run.trainer import train
 
 NETS = {"paper": {}, "paper_b64": dict(batch_size=64), "small": dict(actor_hidden=(64, 64), critic_hidden=(64, 64), forward_hidden=(64, 64),
@@ -54,7 +54,7 @@ def main() -> None:
     p.add_argument("--agents", nargs="+", default=list(AGENTS), choices=AGENTS)
     p.add_argument("--nets", default="small", choices=sorted(NETS))
     p.add_argument("--block", type=int, default=25, help="episodes per row of the curves")
-    p.add_argument("--actuation", default="kinematic", choices=("servo", "kinematic"))
+    p.add_argument("--actuation", default="kinematic", choices=ACTUATIONS)
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--out", default=None, help="keep the runs here (default: a temporary folder)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",

@@ -35,8 +35,10 @@ import apac_mj  # noqa: F401  (sets MUJOCO_GL before mujoco loads)
 from apac_mj.recording import recording as R
 from apac_mj.suite import render
 from apac_mj import suite
-from apac_mj.agent.agent import Agent
-from apac_mj.config import AgentConfig
+from apac_mj.config import TrainConfig
+from apac_mj.kinematics import Sizes
+from apac_mj.run.build import make_agent
+from apac_mj.types import ARM
 
 
 def _state(env) -> np.ndarray:
@@ -45,9 +47,11 @@ def _state(env) -> np.ndarray:
 
 
 def _training_step(seeds: int) -> Callable[[], None]:
-    cfg = AgentConfig()
-    agent = Agent(cfg, seeds=list(range(seeds)))
+    run_cfg = TrainConfig(task="changing_target", seeds=tuple(range(seeds)))
+    cfg = run_cfg.agent
     envs = [suite.load("planar_arm", "changing_target", task_kwargs={"random": k}) for k in range(seeds)]
+    sizes = Sizes.from_specs(envs[0].observation_spec(), envs[0].action_spec())
+    agent = make_agent(run_cfg, suite.spec_for(run_cfg), sizes)
     for env in envs:
         env.reset()
     rng = np.random.default_rng(0)
@@ -61,7 +65,7 @@ def _training_step(seeds: int) -> Callable[[], None]:
         s = torch.as_tensor(np.stack([_state(e) for e in envs]), dtype=torch.float32)
         a = agent.actor_action(s) + agent.noise.sample()
         agent.inverse_action(s)
-        agent.predict_arm(s[:, :4], a)
+        agent.predict_arm(s[:, ARM], a)
         rewards = []
         for env, ak in zip(envs, a.numpy().astype(np.float64)):
             ts = env.step(ak)

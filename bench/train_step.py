@@ -28,6 +28,7 @@ from typing import Callable, Iterator
 import torch
 
 import apac_mj  # noqa: F401  (sets MUJOCO_GL)
+from apac_mj.config import ACTUATIONS
 from apac_mj.agent.agent import Agent
 from apac_mj.agent.replay import EnsembleReplay
 from apac_mj.config import AgentConfig, TrainConfig
@@ -99,7 +100,7 @@ def main() -> None:
     p.add_argument("--nets", nargs="+", default=["paper", "small"], choices=sorted(NETS),
                    help="paper: 400-300 nets, batch 500; small: 64-64 nets, batch 64")
     p.add_argument("--episodes", type=int, default=2, help="training episodes per seed (after 1 babbling)")
-    p.add_argument("--actuation", default="servo", choices=("servo", "kinematic"))
+    p.add_argument("--actuation", default="servo", choices=ACTUATIONS)
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     args = p.parse_args()
     torch.set_num_threads(args.threads)

@@ -53,13 +53,18 @@ from torch import nn
 
 from apac_mj.agent.agent import Agent
 from apac_mj.agent.precision import cpu_info, resolve
-from apac_mj.config import AgentConfig
+from apac_mj.config import AgentConfig, TrainConfig
+from apac_mj.kinematics import Sizes
+from apac_mj.run.build import make_agent
+from apac_mj.suite import spec_for
+from apac_mj.types import ARM, END
 
 
 def filled_agent(E: int, precision: str, device: str = "cpu") -> Agent:
     """A paper-sized agent whose replay memories hold 1000 random transitions each."""
-    agent = Agent(AgentConfig(kind="ddpg", feasibility_weight=0.0), list(range(E)), precision=precision,
-                  device=device)
+    cfg = TrainConfig(seeds=tuple(range(E)), precision=precision, device=device,
+                      agent=AgentConfig(kind="ddpg", feasibility_weight=0.0))
+    agent = make_agent(cfg, spec_for(cfg), Sizes())  # the paper's sizes (changing_target's)
     g = torch.Generator().manual_seed(0)
     for _ in range(agent.cfg.replay_size):
         s, s2 = torch.rand(E, 6, generator=g) * 30, torch.rand(E, 6, generator=g) * 30
@@ -103,9 +108,9 @@ class PlainMember:
             actor_loss = -self.critic(torch.cat([x, self.actor(x)], -1)).float().mean()
             for p in self.critic.parameters():
                 p.requires_grad_(True)
-            fwd = self.forward_model(torch.cat([x[:, :4], a], -1)).float() * 30
-            inv = self.inverse_model(torch.cat([x[:, :4], x2[:, :2]], -1)).float() * 180
-            loss = critic_loss + actor_loss + (fwd - b["next_state"][k][:, :4]).pow(2).mean() \
+            fwd = self.forward_model(torch.cat([x[:, ARM], a], -1)).float() * 30
+            inv = self.inverse_model(torch.cat([x[:, ARM], x2[:, END]], -1)).float() * 180
+            loss = critic_loss + actor_loss + (fwd - b["next_state"][k][:, ARM]).pow(2).mean() \
                 + (inv - b["executed_action"][k]).pow(2).mean()
         for opt in self.opts:
             opt.zero_grad(set_to_none=True)

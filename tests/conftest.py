@@ -7,3 +7,17 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import torch  # noqa: E402
 
 torch.set_num_threads(1)
+
+
+# -- agent sizes for tests that build or train agents (``from conftest import TINY``) --------------------
+
+def nets(*hidden: int) -> dict[str, tuple[int, ...]]:
+    """The four networks' hidden layers, all ``hidden``: ``nets(16, 16)`` -> ``actor_hidden=(16, 16)``, ..."""
+    return {f"{name}_hidden": hidden for name in ("actor", "critic", "forward", "inverse")}
+
+
+#: A tiny agent for runs that train: 16-unit networks, one babbling and two planning episodes
+#: (test_trainer, test_run_dir, test_evaluate, test_faults).
+TINY = dict(nets(16, 16), batch_size=8, replay_size=64, babbling_episodes=1, planning_episodes=2)
+#: Tinier, for runs over every task and kind: 8-unit networks, one planning episode (test_build, test_state_layout).
+TINY8 = dict(nets(8, 8), batch_size=4, replay_size=50, babbling_episodes=1, planning_episodes=1)

@@ -9,9 +9,10 @@ import torch
 from apac_mj.agent.agent import LOSSES, NETWORKS, Agent
 from apac_mj.config import AgentConfig
 
+from conftest import nets
 
-SMALL = dict(actor_hidden=(24, 16), critic_hidden=(24, 16), forward_hidden=(24, 16),
-             inverse_hidden=(24, 16), replay_size=12, batch_size=8)
+
+SMALL = dict(nets(24, 16), replay_size=12, batch_size=8)
 
 
 def small_cfg(**kw) -> AgentConfig:

@@ -18,7 +18,7 @@ from apac_mj.agent.arbitration import blend, ema
 from apac_mj.agent.arbitrators import ReliabilityArbitrator, SpeedAccuracyArbitrator, UncertaintyArbitrator
 from apac_mj.config import AgentConfig
 from apac_mj.run.evaluate import evaluate
-from apac_mj.run.run_dir import load_run
+from apac_mj.run.build import load_run
 from apac_mj.run.trainer import train
 
 from test_trainer import tiny_config, train_killed_and_resumed
@@ -222,7 +222,8 @@ def test_statistics_are_checkpointed_and_frozen_in_the_tests(tmp_path, agent):
     seen = []
     evaluate(run, protocols=("grid",), limit=2, on_step=lambda info, env: seen.append(info.arbitration))
     assert seen and all(set(s) for s in seen)
-    cfg_, _, ckpt = load_run(run)
+    loaded = load_run(run)
+    cfg_, ckpt = loaded.cfg, loaded.ckpt
     arb = kinds.arbitrator_for(cfg_.agent, ckpt.running_statistics()["arbitrator"])
     assert all(same(arb.stats[k], state[k]) for k in state)
     # the test ran with the statistics frozen: the checkpoint is unchanged by it

@@ -318,11 +318,16 @@ def test_the_paper_agent_trains_on_the_torque_arm(tmp_path):
 def test_the_plant_schedule_counts_training_episodes():
     """As changing kinematics: a run's environment counts its babbling resets, so the schedule moves by them."""
     from apac_mj.config import AgentConfig, TrainConfig
-    from apac_mj.run.run_dir import training_env
+    from apac_mj.run.build import check, environments
+
+    def training_env(cfg: TrainConfig):
+        return environments(cfg, check(cfg))
 
     env = training_env(TrainConfig(task=CURL, seeds=(0,), agent=AgentConfig(babbling_episodes=10)))
     plant = env.spec.plant
     assert (plant.field_on_episode, plant.field_off_episode) == (120, 140) and plant.field_b == 100.0
+    env.reset()
+    assert env.episode(0) == -10  # the first of the 10 babbling episodes, before training episode 0
     assert training_env(TrainConfig(task=LOAD, seeds=(0,))).spec.plant.load_change_episode == 120
 
 

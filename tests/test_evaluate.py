@@ -13,9 +13,7 @@ from apac_mj.kinematics import angle_grid, motion_function
 from apac_mj.suite import load_spec
 from apac_mj.run.trainer import train
 
-
-TINY = dict(actor_hidden=(16, 16), critic_hidden=(16, 16), forward_hidden=(16, 16), inverse_hidden=(16, 16),
-            batch_size=8, replay_size=64, babbling_episodes=1, planning_episodes=2)
+from conftest import TINY
 
 
 def _train(tmp_path_factory, agent: str, task: str = "changing_target"):
@@ -139,10 +137,10 @@ def test_protocol_environments_keep_the_vision_under_test(task, overrides, grid_
     """grid/generalization test the task's noisy or intermittent vision (occluded tasks: perfect); the
     occluded protocol is clean occlusion whatever the task's vision."""
     from apac_mj.suite import spec_for
-    from apac_mj.run.evaluate import _eval_env
+    from apac_mj.run.evaluate import eval_env
 
     cfg = TrainConfig(task=task, seeds=(0,), task_overrides=overrides)
     spec, lengths = spec_for(cfg), np.array([[5.0, 8.0]])
     vision = lambda env: (env.spec.vision, env.spec.vision_noise_std, env.spec.vision_seen_probability)
-    assert vision(_eval_env(cfg, spec, lengths, occluded=False)) == grid_vision
-    assert vision(_eval_env(cfg, spec, lengths, occluded=True)) == ("occluded", 0.0, 1.0)
+    assert vision(eval_env(cfg, spec, lengths, occluded=False)) == grid_vision
+    assert vision(eval_env(cfg, spec, lengths, occluded=True)) == ("occluded", 0.0, 1.0)

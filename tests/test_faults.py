@@ -30,10 +30,10 @@ from apac_mj.util import files
 from apac_mj.util.lock import DirectoryLocked, locked
 from apac_mj.util.overrides import OverrideError, parse_seeds
 
+from conftest import TINY
+
 ROOT = Path(__file__).resolve().parent.parent
-TINY = dict(actor_hidden=(16, 16), critic_hidden=(16, 16), forward_hidden=(16, 16), inverse_hidden=(16, 16),
-            batch_size=8, replay_size=64, babbling_episodes=1, planning_episodes=2)
-#: The same settings on the command line.
+#: TINY's settings on the command line.
 TINY_SETS = ["--set", "actor_hidden=16,16", "--set", "critic_hidden=16,16", "--set", "forward_hidden=16,16",
              "--set", "inverse_hidden=16,16", "--set", "batch_size=8", "--set", "replay_size=64",
              "--set", "babbling_episodes=1", "--set", "planning_episodes=2"]

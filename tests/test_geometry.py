@@ -12,9 +12,11 @@ from apac_mj.kinematics import Geometry
 from apac_mj.suite.task_spec import TaskSpecError
 from apac_mj.suite.vec_env import VecEnv
 
+from conftest import nets
+
 #: A task whose shoulder is off-centre and whose joints have another range than the paper's [0, 180].
 ELSEWHERE = {"origin": (10.0, 12.0), "joint_range": (-30.0, 200.0)}
-SMALL = dict(actor_hidden=(8, 8), critic_hidden=(8, 8), forward_hidden=(8, 8), inverse_hidden=(8, 8))
+SMALL = nets(8, 8)
 
 
 def _elsewhere_env(actuation: str = "kinematic") -> VecEnv:

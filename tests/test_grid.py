@@ -14,6 +14,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
+from apac_mj.config import AgentConfig
 from apac_mj.experiments import grid
 from apac_mj.experiments.presets import CONDITIONS, PresetError, load_preset
 from apac_mj.experiments.results import load_results, load_tests
@@ -34,7 +35,7 @@ def test_shipped_presets_load(name: str) -> None:
 def test_paper_preset_is_the_papers_study() -> None:
     p = load_preset("paper")
     assert p.agents == ("ddpg", "spac", "apac") and p.conditions == CONDITIONS
-    assert p.seeds == tuple(range(50)) and p.episodes == 1000 and p.agent == {}
+    assert p.seeds == tuple(range(50)) and p.episodes == 1000 and p.run.agent == AgentConfig()
     cs = grid.cells(p)
     assert len(cs) == 12 + 12
     assert {c.protocols for c in cs if c.agent == "ddpg" and c.region == "all"} == {("grid",)}
@@ -46,7 +47,7 @@ def test_overrides() -> None:
     p = load_preset("paper", ["seeds=3-5", "episodes=7", "agents=ddpg,apac", "agent.batch_size=64",
                                    "tests.occluded=false", "device=cpu"])
     assert p.seeds == (3, 4, 5) and p.episodes == 7 and p.agents == ("ddpg", "apac")
-    assert p.agent == {"batch_size": 64} and not p.tests.occluded
+    assert p.run.agent == AgentConfig(batch_size=64) and not p.tests.occluded
     assert load_preset("smoke", ["seeds=[1, 4]"]).seeds == (1, 4)
     assert load_preset("smoke", ["seeds=4"]).seeds == (0, 1, 2, 3)
     cfg = grid.cells(p)[0].train_config(p)
@@ -141,6 +142,50 @@ def test_atomic_write_leaves_no_temporary_files(tmp_path: Path) -> None:
     grid.atomic_write_text(target, "one")
     grid.atomic_write_text(target, "two")
     assert target.read_text() == "two" and [p.name for p in tmp_path.iterdir()] == ["m.json"]
+
+
+# -- the Ray driver's watchdog (no Ray needed) -------------------------------------------
+
+def _running(pid: int) -> bool:
+    """``pid`` exists and is not a zombie (an orphan's zombie waits for a reaper that may never come)."""
+    try:
+        return (Path("/proc") / str(pid) / "stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self/task"), reason="the watchdog reads /proc (Linux)")
+def test_the_ray_watchdog_kills_what_a_killed_driver_left_and_exits() -> None:
+    """The executor starts ``python -m apac_mj.experiments.watchdog DRIVER_PID`` (the driver's child, in its own
+    session); while the driver lives it leaves the driver's processes alone, after the driver's kill -9 it
+    kills them (here a ``sleep``) and exits."""
+    from apac_mj.experiments import watchdog
+
+    script = ("import subprocess, time\nfrom apac_mj.experiments import executors\n"
+              "w = executors._ray_watchdog()\nchild = subprocess.Popen(['sleep', '120'])\n"
+              "print(w.args[1:3], w.pid, child.pid, flush=True)\ntime.sleep(120)\n")
+    driver = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True, cwd=ROOT)
+    pids: list[int] = []
+    try:
+        line = driver.stdout.readline()
+        assert line.startswith("['-m', 'apac_mj.experiments.watchdog'] "), line
+        pids = [int(p) for p in line.split("] ")[1].split()]
+        time.sleep(3.0)  # the watchdog notes the driver's descendants every second
+        assert all(_running(p) for p in pids), "the watchdog or the child stopped while the driver lives"
+        os.kill(driver.pid, signal.SIGKILL)  # not reaped yet: the watchdog sees a zombie driver as gone
+        deadline = time.monotonic() + 15
+        while any(_running(p) for p in pids) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert not _running(pids[1]), "the killed driver's child is still running"
+        assert not _running(pids[0]), "the watchdog did not exit"
+    finally:
+        for p in pids[::-1]:
+            if _running(p):
+                os.kill(p, signal.SIGKILL)
+        driver.kill()
+        driver.wait()
+    no_such_pid = int(Path("/proc/sys/kernel/pid_max").read_text()) + 1
+    watchdog.main([str(no_such_pid)])  # no driver (gone before the watchdog started): returns at once
 
 
 # -- running the grid (needs the trainer) ---------------------------------------------

@@ -152,7 +152,7 @@ def test_the_layer_check_sees_a_violation():
     assert layer("apac_mj.agent.agent") == 1 and layer("apac_mj.run.trainer") == 2 and layer("apac_mj") == 7
     assert layer("apac_mj.util.files") == 0 and layer("apac_mj.report") == 4 and layer("apac_mj.commands.grid") == 6
     graph = {name: imports(name) for name in MODULES}
-    assert "apac_mj.agent.agent" in graph["apac_mj.run.trainer"]  # a real downward edge, read from the file
+    assert "apac_mj.agent.agent" in graph["apac_mj.run.build"]  # a real downward edge, read from the file
     with pytest.raises(AssertionError):
         layer("apac_mjx.other")
 
@@ -184,3 +184,11 @@ def test_every_public_name_resolves():
     assert apac_mj.AgentConfig is __import__("apac_mj.config", fromlist=["AgentConfig"]).AgentConfig
     with pytest.raises(AttributeError, match="no attribute 'nope'"):
         apac_mj.nope  # noqa: B018
+
+
+def test_the_run_directory_imports_neither_the_plant_nor_the_learner():
+    """run/run_dir.py reads and writes a run's files; a run is built from them in run/build.py."""
+    reached = imports("apac_mj.run.run_dir", type_level=True)
+    assert not {m for m in reached if m.startswith(("apac_mj.suite", "apac_mj.agent", "apac_mj.kinds",
+                                                    "apac_mj.run.build", "apac_mj.run.rollout"))}, reached
+    assert "apac_mj.run.run_dir" in imports("apac_mj.run.build")  # the builder reads the files through it

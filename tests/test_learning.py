@@ -31,13 +31,14 @@ import pytest
 from apac_mj.config import AgentConfig, TrainConfig
 from apac_mj.run.trainer import train
 
+from conftest import nets
+
 
 #: The planning checks run with a constant 2-degree OU sigma: the default anneals from 18 degrees over 150
 #: episodes (for DDPG's exploration), and noise that large keeps any controller out of the 0.5 cm zone
 #: during these short runs whatever it has learned.
 PLANNING = dict(ou_sigma_initial=None)
-SMALL = dict(actor_hidden=(32, 32), critic_hidden=(32, 32), forward_hidden=(32, 32), inverse_hidden=(32, 32),
-             batch_size=32, babbling_episodes=3, **PLANNING)
+SMALL = dict(nets(32, 32), batch_size=32, babbling_episodes=3, **PLANNING)
 
 
 def run(tmp_path, agent: str, task: str, episodes: int, seeds=(0, 1, 2, 3), **kw) -> pd.DataFrame:

@@ -40,7 +40,7 @@ def test_one_override_grammar_for_train_and_grid():
     for c in (cfg, cell):
         assert c.agent.actor_hidden == (64, 64) and c.agent.batch_size == 32 and c.agent.ou_sigma_initial is None
         assert c.agent.normalize_inputs is False and c.episodes == 7 and c.task_overrides == {"at_limit": "unbounded"}
-    assert load_preset("smoke", ["agent.actor_hidden=[64, 64]"]).agent["actor_hidden"] == (64, 64)
+    assert load_preset("smoke", ["agent.actor_hidden=[64, 64]"]).run.agent.actor_hidden == (64, 64)
 
 
 @pytest.mark.parametrize("item, message", [

@@ -1,6 +1,7 @@
 """--precision auto: bf16 exactly where the hardware has bf16 dot products, said and recorded; a run keeps its own."""
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import pytest
@@ -52,8 +53,7 @@ def test_cpu_info_without_proc_cpuinfo_has_no_flags():
 
 
 def test_auto_run_records_the_resolved_choice_and_a_resumed_run_keeps_its_own(tmp_path, capsys, monkeypatch):
-    cfg = tiny_config((0,), episodes=1)
-    cfg.precision = "auto"
+    cfg = dataclasses.replace(tiny_config((0,), episodes=1), precision="auto")
     here = resolve("auto").precision
     run = train(cfg, tmp_path / "run", progress=False)
     assert json.loads((run / "config.json").read_text())["precision"] == here
@@ -62,7 +62,6 @@ def test_auto_run_records_the_resolved_choice_and_a_resumed_run_keeps_its_own(tm
     other = cpu_info(ZEN2 if here == "bf16" else ZEN4)
     monkeypatch.setattr(precision, "cpu_info", lambda: other)
     assert resolve("auto").precision != here
-    cfg.episodes = 2
-    train(cfg, run, progress=False)
+    train(dataclasses.replace(cfg, episodes=2), run, progress=False)
     assert json.loads((run / "config.json").read_text())["precision"] == here
     assert "auto keeps the precision" in capsys.readouterr().err

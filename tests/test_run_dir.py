@@ -3,6 +3,7 @@ and keys, a run written by an older release, and that no other module opens its 
 from __future__ import annotations
 
 import ast
+import dataclasses
 import json
 import shutil
 from pathlib import Path
@@ -13,14 +14,15 @@ import torch
 
 from apac_mj.config import AgentConfig, TrainConfig
 from apac_mj.run import run_dir as rd
+from apac_mj.run.build import load_run
 from apac_mj.run.checkpoint import CheckpointError
 from apac_mj.run.run_dir import RunCheckpoint, RunDir
+
+from conftest import TINY
 
 PACKAGE = Path(__file__).resolve().parents[1] / "apac_mj"
 #: A run directory written by release 936695d (tests/fixtures/run_936695d/README.md).
 OLD_RUN = Path(__file__).resolve().parent / "fixtures" / "run_936695d"
-TINY = dict(actor_hidden=(16, 16), critic_hidden=(16, 16), forward_hidden=(16, 16), inverse_hidden=(16, 16),
-            batch_size=8, replay_size=64, babbling_episodes=1, planning_episodes=2)
 
 
 def tiny_config(episodes: int = 4, **kw) -> TrainConfig:
@@ -94,7 +96,7 @@ def test_not_a_run_directory_says_why(tmp_path):
     with pytest.raises(FileNotFoundError, match="not a run directory"):
         RunDir(tmp_path).config()
     with pytest.raises(FileNotFoundError, match="not a run directory"):
-        rd.load_run(tmp_path)
+        load_run(tmp_path)
 
 
 def test_metrics_rows_and_summary(tmp_path):
@@ -153,7 +155,8 @@ def test_a_run_written_by_an_older_release_reads(tmp_path):
     run = RunDir(OLD_RUN)
     assert run.exists() and run.finished() and run.evaluated() and run.episodes() == 6
     assert run.metric_rows() == len(run.metrics()) == 2 * (6 + 1)
-    cfg, agent, ckpt = rd.load_run(OLD_RUN)
+    loaded = load_run(OLD_RUN)
+    cfg, agent, ckpt = loaded.cfg, loaded.agent, loaded.ckpt
     assert cfg.agent.kind == "apac_speed_accuracy" and agent.E == 2 == len(cfg.seeds)
     assert ckpt.config == run.config() and ckpt.metric_rows == run.metric_rows()
     assert ckpt.member_lengths().shape == (2, 2) and [ckpt.member_episode(k) for k in (0, 1)] == [6, 6]
@@ -165,8 +168,7 @@ def test_an_older_release_s_run_resumes_to_the_same_numbers(tmp_path):
     from apac_mj.run.trainer import train
 
     run = Path(shutil.copytree(OLD_RUN, tmp_path / "run"))
-    cfg = RunDir(run).train_config()
-    cfg.episodes = 8
+    cfg = dataclasses.replace(RunDir(run).train_config(), episodes=8)
     train(cfg, run, progress=False)
     expected = pd.read_parquet(OLD_RUN / "expected_metrics_8_episodes.parquet")
     from tests.test_old_runs import FLOAT_TOLERANCE  # exact off the CPU class that wrote it: float32 rounding

@@ -1,6 +1,7 @@
 """Training loop: ensemble members equal single-seed runs, exact resume, checkpoint errors, run dir contents."""
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -15,9 +16,7 @@ from apac_mj.run.run_dir import METRIC_COLUMNS
 from apac_mj.run.trainer import train
 from apac_mj.util import files
 
-
-TINY = dict(actor_hidden=(16, 16), critic_hidden=(16, 16), forward_hidden=(16, 16), inverse_hidden=(16, 16),
-            batch_size=8, replay_size=64, babbling_episodes=1, planning_episodes=2)
+from conftest import TINY
 
 
 def tiny_config(seeds=(0, 1), episodes=4, agent="apac", task="changing_target", **kw) -> TrainConfig:
@@ -165,8 +164,7 @@ def test_parse_seeds():
 
 
 def test_bf16_run_is_finite_and_reproducible(tmp_path):
-    cfg = tiny_config((0,), episodes=2)
-    cfg.precision = "bf16"
+    cfg = dataclasses.replace(tiny_config((0,), episodes=2), precision="bf16")
     a = pd.read_parquet(train(cfg, tmp_path / "a", progress=False) / "metrics.parquet")
     b = pd.read_parquet(train(cfg, tmp_path / "b", progress=False) / "metrics.parquet")
     pd.testing.assert_frame_equal(a, b, check_exact=True)
@@ -289,22 +287,21 @@ def test_result_files_honour_the_umask(tmp_path):
 
 @pytest.mark.skipif(torch.cuda.is_available(), reason="needs a machine without CUDA")
 def test_failed_start_leaves_nothing_behind(tmp_path):
-    cfg = tiny_config(seeds=(0,), episodes=2)
-    cfg.device = "cuda"
+    cfg = dataclasses.replace(tiny_config(seeds=(0,), episodes=2), device="cuda")
     with pytest.raises(ValueError, match="CUDA is not available.*--device cpu"):
         train(cfg, tmp_path / "run", progress=False)
     assert not (tmp_path / "run").exists()
-    cfg.device = "cpu"
+    cfg = dataclasses.replace(cfg, device="cpu")
     assert (train(cfg, tmp_path / "run", progress=False) / "DONE").is_file()
 
 
 def test_bad_agent_config_writes_no_config(tmp_path, monkeypatch):
-    from apac_mj.run import trainer
+    from apac_mj.run import build
 
     def broken(*a, **k):
         raise RuntimeError("agent construction failed")
 
-    monkeypatch.setattr(trainer, "Agent", broken)
+    monkeypatch.setattr(build, "Agent", broken)
     with pytest.raises(RuntimeError, match="construction failed"):
         train(tiny_config(seeds=(0,), episodes=2), tmp_path / "run", progress=False)
     assert not (tmp_path / "run" / "config.json").exists()

@@ -21,9 +21,10 @@ from apac_mj.kinds import arbitrator_for
 from apac_mj.run.rollout import EpisodeLoop, EpisodeState, to_host
 from apac_mj.suite.vec_env import VecEnv
 
+from conftest import nets
+
 READS = {"cpu", "numpy", "item", "tolist", "__bool__", "__array__", "__float__", "__int__", "__index__"}
-SMALL = dict(actor_hidden=(16, 16), critic_hidden=(16, 16), forward_hidden=(16, 16), inverse_hidden=(16, 16),
-             replay_size=32, batch_size=8, planning_episodes=0)
+SMALL = dict(nets(16, 16), replay_size=32, batch_size=8, planning_episodes=0)
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
 
 

@@ -16,8 +16,9 @@ from apac_mj.agent.agent import NETWORKS, TRAINED, Agent
 from apac_mj.config import AgentConfig
 from apac_mj.agent.networks import EnsembleCritic
 
-SMALL = dict(actor_hidden=(24, 16), critic_hidden=(24, 16), forward_hidden=(24, 16),
-             inverse_hidden=(24, 16), replay_size=16, batch_size=8)
+from conftest import nets
+
+SMALL = dict(nets(24, 16), replay_size=16, batch_size=8)
 
 
 def _batch(E: int, B: int, seed: int = 0) -> dict[str, torch.Tensor]:

@@ -27,14 +27,13 @@ import torch
 from torch import nn
 
 from apac_mj.agent.replay import EnsembleReplay
-from apac_mj.config import AgentConfig
+from apac_mj.config import PRECISIONS, AgentConfig
 from apac_mj.kinematics import Geometry, Sizes
+from apac_mj.types import ARM, ELBOW, END, LOSSES, POSITIONS
 from apac_mj.agent.networks import build_actor, build_critic, build_forward_model, build_inverse_model
 from apac_mj.agent.noise import OUNoise
 
-PRECISIONS = ("fp32", "bf16")
 NETWORKS = ("actor", "critic", "forward_model", "inverse_model", "target_actor", "target_critic")
-LOSSES = ("critic", "actor", "forward", "inverse")
 #: Networks trained by the optimizer, with the AgentConfig field of their learning rate.
 TRAINED = {"critic": "critic_lr", "actor": "actor_lr", "forward_model": "forward_lr", "inverse_model": "inverse_lr"}
 
@@ -111,7 +110,7 @@ class Agent:
             lo = torch.full((*s.shape[:-1], self.action_dim), -self.cfg.action_scale, dtype=s.dtype,
                             device=s.device)
             return lo, -lo
-        return self.geometry.feasible_changes(s[..., 0:2], s[..., 2:4], self.cfg.action_scale)
+        return self.geometry.feasible_changes(s[..., END], s[..., ELBOW], self.cfg.action_scale)
 
     def to_action(self, u: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
         """A network's tanh output ``u`` in [-1, 1] -> joint-angle changes (degrees) in state ``s``
@@ -149,16 +148,17 @@ class Agent:
     # -- proposals -------------------------------------------------------------
     @torch.no_grad()
     def actor_action(self, state: torch.Tensor) -> torch.Tensor:
-        """Habit proposal ``pi(s)``: ``[E,6] -> [E,2]`` degrees (no noise)."""
+        """Habit proposal ``pi(s)``: state ``[E, 6 + extra] -> [E,2]`` degrees (no noise)."""
         s = self._check("state", state, self.state_dim)
         actor = self.target_actor if self.cfg.act_with_target_actor else self.actor
         return self.to_action(actor(self._pos(s)[:, None])[:, 0], s)
 
     @torch.no_grad()
     def inverse_action(self, state: torch.Tensor) -> torch.Tensor:
-        """Planning proposal: ``[end, elbow, target]`` ``[E,6] -> [E,2]`` degrees (no noise)."""
+        """Planning proposal from the state's positions ``[end, elbow, target]`` (``POSITIONS``):
+        ``[E, 6 + extra] -> [E,2]`` degrees (no noise)."""
         s = self._check("state", state, self.state_dim)
-        return self.to_action(self.inverse_model(self._pos(s[:, :6])[:, None])[:, 0], s)
+        return self.to_action(self.inverse_model(self._pos(s[:, POSITIONS])[:, None])[:, 0], s)
 
     @torch.no_grad()
     def predict_arm(self, arm: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
@@ -244,19 +244,19 @@ class Agent:
             actor_loss = -self.critic(x, self._act(pi), detach=True).float().mean(1)
         if cfg.habit_distillation_weight > 0:  # kinds that arbitrate only (apac_mj.kinds.check)
             with torch.no_grad(), self._precision("inverse_model"):
-                plan = self.to_action(self.inverse_model(x[..., :6]).float(), s)
+                plan = self.to_action(self.inverse_model(x[..., POSITIONS]).float(), s)
             distance = ((pi - plan) / cfg.action_scale).pow(2).sum(-1).mean(1)
             actor_loss = actor_loss + cfg.habit_distillation_weight * distance
         if cfg.feasibility_weight > 0:
             excess = (pi - self.executable(pi, s)) / cfg.action_scale
             actor_loss = actor_loss + cfg.feasibility_weight * excess.pow(2).sum(-1).mean(1)
         with self._precision("forward_model"):
-            arm_next = self.forward_model(torch.cat([x[..., :4], self._act(a)], -1)).float()
+            arm_next = self.forward_model(torch.cat([x[..., ARM], self._act(a)], -1)).float()
         with self._precision("inverse_model"):
-            u_inv = self.inverse_model(torch.cat([x[..., :4], self._pos(s2[..., :2])], -1)).float()
+            u_inv = self.inverse_model(torch.cat([x[..., ARM], self._pos(s2[..., END])], -1)).float()
         return {"critic": (y - q).pow(2).mean(1),
                 "actor": actor_loss,
-                "forward": (arm_next - s2[..., :4]).pow(2).mean((1, 2)),
+                "forward": (arm_next - s2[..., ARM]).pow(2).mean((1, 2)),
                 "inverse": (self.to_action(u_inv, s) - b["executed_action"]).pow(2).mean((1, 2))}
 
     @torch.no_grad()

@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
-from apac_mj.types import HABIT_COST, PLANNING_COST, ArbitrationContext, Arbitrator, Decision, StepInfo
+from apac_mj.types import END, HABIT_COST, PLANNING_COST, TARGET, ArbitrationContext, Arbitrator, Decision, StepInfo
 
 if TYPE_CHECKING:
     from apac_mj.config import AgentConfig
@@ -102,12 +102,12 @@ def step_signals(info: StepInfo) -> dict[str, torch.Tensor]:
     the zone radius the step was judged by (0-dim)."""
     state, nxt = torch.as_tensor(info.state), torch.as_tensor(info.next_state)
     vision = torch.as_tensor(info.vision)
-    end_error = torch.linalg.vector_norm(torch.as_tensor(info.predicted_arm)[:, :2] - nxt[:, :2], dim=1)
+    end_error = torch.linalg.vector_norm(torch.as_tensor(info.predicted_arm)[:, END] - nxt[:, END], dim=1)
     habit = torch.as_tensor(info.habit)
     return {"delta": torch.as_tensor(info.delta, dtype=torch.float32),
             "end_error": torch.where(vision, end_error, float("nan")).float(),
-            "before": torch.linalg.vector_norm(state[:, :2] - state[:, 4:], dim=1).float(),
-            "after": torch.linalg.vector_norm(nxt[:, :2] - nxt[:, 4:], dim=1).float(),
+            "before": torch.linalg.vector_norm(state[:, END] - state[:, TARGET], dim=1).float(),
+            "after": torch.linalg.vector_norm(nxt[:, END] - nxt[:, TARGET], dim=1).float(),
             "cost": torch.where(habit, float(HABIT_COST), float(PLANNING_COST)), "habit": habit,
             "done": torch.as_tensor(info.done), "terminal": torch.as_tensor(info.terminal),
             "episode": torch.as_tensor(info.episode), "zone_radius": torch.tensor(float(info.zone_radius))}

@@ -28,7 +28,7 @@ import torch
 
 from apac_mj.agent.arbitration import blend, ema, step_signals
 from apac_mj.rules import ReliabilityParams, SpeedAccuracyParams, UncertaintyParams, VisionAwareParams
-from apac_mj.types import HABIT_COST, PLANNING_COST, ArbitrationContext, Arbitrator, Decision, StepInfo
+from apac_mj.types import END, HABIT_COST, PLANNING_COST, TARGET, ArbitrationContext, Arbitrator, Decision, StepInfo
 
 if TYPE_CHECKING:
     from apac_mj.config import AgentConfig
@@ -252,7 +252,7 @@ class SpeedAccuracyArbitrator(RunningArbitrator):
             self.stats[key] = torch.where(going, value.to(old.dtype), torch.where(mask, none, old))
 
     def use_habit(self, ctx: ArbitrationContext) -> Decision:
-        distance = torch.linalg.vector_norm(ctx.state[:, :2] - ctx.state[:, 4:6], dim=1).cpu()
+        distance = torch.linalg.vector_norm(ctx.state[:, END] - ctx.state[:, TARGET], dim=1).cpu()
         table = self.stat("table", ctx.E)[torch.arange(ctx.E), self.bins(distance)]
         time_habit = torch.where(torch.isnan(table[:, 0]), float(HABIT_COST), table[:, 0])
         time_plan = torch.where(torch.isnan(table[:, 1]), float(PLANNING_COST), table[:, 1])
@@ -287,8 +287,8 @@ class VisionAwareArbitrator(Arbitrator):
         else:
             if ctx.habit_action is None or ctx.predict_end is None:
                 raise ValueError("vision_aware.dark='check' needs the context's habit_action and predict_end")
-            target = ctx.state[:, 4:6]
-            now = torch.linalg.vector_norm(ctx.state[:, :2] - target, dim=1)
+            target = ctx.state[:, TARGET]
+            now = torch.linalg.vector_norm(ctx.state[:, END] - target, dim=1)
             after = torch.linalg.vector_norm(ctx.predict_end(ctx.habit_action) - target, dim=1)
             allowed = (~dark | (after <= torch.clamp(self.ratio * now, min=ctx.zone_radius))).cpu()
             inputs["predicted_habit_distance"] = after.cpu()

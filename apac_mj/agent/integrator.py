@@ -1,6 +1,8 @@
 """The integrator: the state estimate the agent acts and learns on.
 
-State layout everywhere: ``[end_x, end_y, elbow_x, elbow_y, target_x, target_y]`` (cm).
+The integrator estimates the positions ``[end_x, end_y, elbow_x, elbow_y, target_x, target_y]`` (cm), the
+state's first :data:`~apac_mj.types.POSITION_DIM` columns, read through :mod:`apac_mj.types`' names
+(``ARM`` = [end, elbow], ``TARGET``); the covariance ``P`` has the same layout.
 
 :func:`integrate` and :class:`PassThrough` are the paper's integrator: with
 vision the observed arm position passes through; without it (occluded or an
@@ -51,13 +53,13 @@ out). The Kalman filter's parameters are the table ``agent.kalman``
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 
 from apac_mj.rules import INTEGRATORS, KalmanParams
-from apac_mj.types import Integrator
+from apac_mj.types import ARM, POSITION_DIM, TARGET, Integrator
 
 if TYPE_CHECKING:
     from apac_mj.config import AgentConfig
@@ -74,7 +76,7 @@ def integrate(observed: torch.Tensor, predicted: torch.Tensor, vision: torch.Ten
     return torch.where(vision[:, None], observed, predicted)
 
 
-def _mask(m: Any, E: int, device: torch.device, name: str) -> torch.Tensor:
+def _mask(m: np.ndarray | torch.Tensor, E: int, device: torch.device, name: str) -> torch.Tensor:
     """``m`` (numpy or torch) as an ``[E]`` bool tensor on ``device``; ValueError naming ``name`` otherwise."""
     t = torch.as_tensor(np.asarray(m) if not isinstance(m, torch.Tensor) else m, device=device)
     if t.dtype != torch.bool or tuple(t.shape) != (E,):
@@ -89,11 +91,11 @@ def _check(t: torch.Tensor, shape: tuple[int, ...], name: str) -> None:
 
 
 def _inputs(E: int, prior_state: torch.Tensor, predicted_arm: torch.Tensor, observed_state: torch.Tensor,
-            vision: Any, active: Any) -> tuple[torch.Tensor, torch.Tensor]:
+            vision: np.ndarray | torch.Tensor, active: np.ndarray | torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """The shapes of an update's inputs checked; ``vision`` and ``active`` as ``[E]`` bool tensors."""
-    _check(prior_state, (E, 6), "prior_state")
+    _check(prior_state, (E, POSITION_DIM), "prior_state")
     _check(predicted_arm, (E, 4), "predicted_arm")
-    _check(observed_state, (E, 6), "observed_state")
+    _check(observed_state, (E, POSITION_DIM), "observed_state")
     return _mask(vision, E, prior_state.device, "vision"), _mask(active, E, prior_state.device, "active")
 
 
@@ -102,30 +104,30 @@ class PassThrough(Integrator):
 
     name = "pass_through"
 
-    def reset(self, mask: Any, seen_state: torch.Tensor) -> None:
+    def reset(self, mask: np.ndarray | torch.Tensor, seen_state: torch.Tensor) -> None:
         """Start new episodes for the members in ``mask`` ``[E]`` from ``seen_state`` ``[E, 6]`` (checks only)."""
         _mask(mask, self.E, self.device, "mask")
-        _check(seen_state, (self.E, 6), "seen_state")
+        _check(seen_state, (self.E, POSITION_DIM), "seen_state")
 
     def update(self, prior_state: torch.Tensor, predicted_arm: torch.Tensor, observed_state: torch.Tensor,
-               vision: Any, active: Any) -> torch.Tensor:
+               vision: np.ndarray | torch.Tensor, active: np.ndarray | torch.Tensor) -> torch.Tensor:
         """The next estimate ``[E, 6]``: arm observed if seen else predicted, target observed if seen else
         the prior's; rows of inactive members are ``prior_state``'s."""
         vision, active = _inputs(self.E, prior_state, predicted_arm, observed_state, vision, active)
-        arm = integrate(observed_state[:, :4], predicted_arm, vision)
-        target = torch.where(vision[:, None], observed_state[:, 4:], prior_state[:, 4:])
+        arm = integrate(observed_state[:, ARM], predicted_arm, vision)
+        target = torch.where(vision[:, None], observed_state[:, TARGET], prior_state[:, TARGET])
         return torch.where(active[:, None], torch.cat([arm, target], dim=1), prior_state)
 
     def variance(self) -> torch.Tensor:
         """``[E, 6]`` per-coordinate variance of the estimate: none is modelled, zeros."""
-        return torch.zeros(self.E, 6, device=self.device)
+        return torch.zeros(self.E, POSITION_DIM, device=self.device)
 
 
 class KalmanIntegrator(Integrator):
     """Per-coordinate scalar Kalman filters with an adaptive (Mehra) process variance; module doc."""
 
     name = "kalman"
-    _KEYS = {"P": 6, "ema_innovation_sq": 4, "ema_prior_var": 4, "count": 0}
+    _KEYS = {"P": POSITION_DIM, "ema_innovation_sq": 4, "ema_prior_var": 4, "count": 0}
 
     def __init__(self, E: int, obs_std: float, process_floor: float = 1e-4, window: int = 200,
                  initial_process_var: float = 0.25, device: torch.device | str = "cpu",
@@ -146,16 +148,16 @@ class KalmanIntegrator(Integrator):
             float(initial_process_var)
         self.process_var = None if process_var is None else float(process_var)
         dev = self.device
-        self.P = torch.full((E, 6), self.R, device=dev)
+        self.P = torch.full((E, POSITION_DIM), self.R, device=dev)
         self.ema_innovation_sq = torch.zeros(E, 4, device=dev)
         self.ema_prior_var = torch.zeros(E, 4, device=dev)
         self.count = torch.zeros(E, dtype=torch.int64, device=dev)
 
-    def reset(self, mask: Any, seen_state: torch.Tensor) -> None:
+    def reset(self, mask: np.ndarray | torch.Tensor, seen_state: torch.Tensor) -> None:
         """``P = R`` for the members in ``mask`` (their estimate is ``seen_state``, the caller's); the
         innovation averages are kept."""
         rows = _mask(mask, self.E, self.device, "mask")
-        _check(seen_state, (self.E, 6), "seen_state")
+        _check(seen_state, (self.E, POSITION_DIM), "seen_state")
         self.P = torch.where(rows[:, None], torch.full_like(self.P, self.R), self.P)
 
     def q(self) -> torch.Tensor:
@@ -166,17 +168,17 @@ class KalmanIntegrator(Integrator):
         return torch.where(self.count[:, None] > 0, adaptive, torch.full_like(adaptive, self.initial_process_var))
 
     def update(self, prior_state: torch.Tensor, predicted_arm: torch.Tensor, observed_state: torch.Tensor,
-               vision: Any, active: Any) -> torch.Tensor:
+               vision: np.ndarray | torch.Tensor, active: np.ndarray | torch.Tensor) -> torch.Tensor:
         """Predict and correct (module doc); returns the next estimate ``[E, 6]``, inactive rows unchanged."""
         vision, active = _inputs(self.E, prior_state, predicted_arm, observed_state, vision, active)
         dev = self.device
         vision, active = vision.to(dev), active.to(dev)
         seen = vision & active
         prior, predicted, obs = (t.to(dev) for t in (prior_state, predicted_arm, observed_state))
-        x_minus = torch.cat([predicted, prior[:, 4:]], dim=1)
+        x_minus = torch.cat([predicted, prior[:, TARGET]], dim=1)
         q = self.q()
-        p_minus = torch.cat([self.P[:, :4] + q, self.P[:, 4:]], dim=1)
-        self._learn_q(seen, obs[:, :4] - predicted)
+        p_minus = torch.cat([self.P[:, ARM] + q, self.P[:, TARGET]], dim=1)
+        self._learn_q(seen, obs[:, ARM] - predicted)
         denom = p_minus + self.R
         gain = torch.where(denom == 0, torch.ones_like(denom), p_minus / torch.where(denom == 0, 1.0, denom))
         gain = torch.where(seen[:, None], gain, torch.zeros_like(gain))
@@ -196,7 +198,7 @@ class KalmanIntegrator(Integrator):
         nu2 = innovation.to(self.P.dtype) ** 2
         self.ema_innovation_sq = torch.where(rows, self.ema_innovation_sq + rate * (nu2 - self.ema_innovation_sq),
                                              self.ema_innovation_sq)
-        prior_var = self.P[:, :4] + self.R
+        prior_var = self.P[:, ARM] + self.R
         self.ema_prior_var = torch.where(rows, self.ema_prior_var + rate * (prior_var - self.ema_prior_var),
                                          self.ema_prior_var)
 

@@ -18,8 +18,10 @@ import dataclasses
 import platform
 from pathlib import Path
 
+from apac_mj.config import PRECISION_REQUESTS
+
 #: What a run may ask for; ``auto`` is resolved by :func:`resolve` before the run starts.
-REQUESTS = ("fp32", "bf16", "auto")
+REQUESTS = PRECISION_REQUESTS
 #: The CPU flags (``/proc/cpuinfo``) that give bf16 dot products.
 BF16_CPU_FLAGS = ("avx512_bf16", "amx_bf16")
 

@@ -13,13 +13,15 @@ error exceeds --tolerance."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from apac_mj.config import ACTUATIONS
+
     p = sub.add_parser("check-kinematics", help="check the MuJoCo arm against the motion function",
                        description=DESCRIPTION)
     p.add_argument("--samples", type=int, default=1000, help="random configurations to check (default 1000)")
     p.add_argument("--seed", type=int, default=0, help="seed of the random actions and lengths (default 0)")
     p.add_argument("--tolerance", type=float, default=1e-9,
                    help="largest allowed absolute coordinate error in cm (default 1e-9)")
-    p.add_argument("--actuation", choices=("servo", "kinematic"), default="servo",
+    p.add_argument("--actuation", choices=ACTUATIONS, default="servo",
                    help="servo: position servos move the arm (default); kinematic: angles written exactly")
     p.add_argument("--task", default="changing_target",
                    help="task whose arm to check (default changing_target); a task with dynamics ([plant]) holds "

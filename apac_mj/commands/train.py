@@ -33,7 +33,7 @@ config.json or metrics.parquet that disagrees with the checkpoint is named (docs
 
 def register(sub: argparse._SubParsersAction) -> None:
     from apac_mj import kinds
-    from apac_mj.config import AgentConfig, TrainConfig
+    from apac_mj.config import ACTUATIONS, PRECISION_REQUESTS, AgentConfig, TrainConfig
     from apac_mj.util.overrides import field_docs, field_help
 
     d, doc = TrainConfig(), field_docs(TrainConfig)
@@ -58,14 +58,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--episodes", type=int, default=d.episodes, help=f"{doc['episodes']} (default {d.episodes})")
     p.add_argument("--out", required=True, help="run directory (created; an existing one is resumed)")
     p.add_argument("--device", default=d.device, help=f"{doc['device']} (default {d.device})")
-    p.add_argument("--precision", choices=("fp32", "bf16", "auto"), default=d.precision,
+    p.add_argument("--precision", choices=PRECISION_REQUESTS, default=d.precision,
                    help="fp32 (reference, bit-reproducible on CPU), bf16 autocast of the matrix products, or "
                         "auto: bf16 where the hardware has bf16 dot products (a CPU with avx512_bf16 or amx_bf16, "
                         "a CUDA GPU with bf16), else fp32; the run says which and why, and config.json records "
                         "the choice (a resumed run keeps its own)")
     p.add_argument("--checkpoint-every", type=int, default=d.checkpoint_every,
                    help=f"{doc['checkpoint_every']} (default {d.checkpoint_every})")
-    p.add_argument("--actuation", choices=("servo", "kinematic"), default=d.actuation,
+    p.add_argument("--actuation", choices=ACTUATIONS, default=d.actuation,
                    help="servo: MuJoCo position servos (default); kinematic: joint angles written exactly")
     p.add_argument("--record-every", type=int, default=None, metavar="N",
                    help="record every N-th episode to RUN_DIR/recordings/*.rrd (Rerun; apac_mj.recording.recording)")
@@ -89,15 +89,9 @@ def parse_seeds(text: str) -> tuple[int, ...]:
 def agent_overrides(items: list[str]) -> dict:
     """``KEY=VALUE`` strings (``NAME`` or ``agent.NAME``) -> AgentConfig keyword arguments, in the one
     --set grammar (apac_mj.util.overrides): typed by the field, an unknown name or a bad value refused."""
-    from apac_mj.util import overrides
-    from apac_mj.config import AgentConfig
+    from apac_mj.experiments.presets import agent_overrides as parse
 
-    fields = overrides.keys(AgentConfig) - {"kind"}
-    data = overrides.apply_sets({}, items, agent_fields=fields, top_level=())
-    stray = sorted(set(data) - {"agent"})
-    if stray:
-        raise overrides.OverrideError(f"--set: unknown AgentConfig field(s) {stray}; known: {', '.join(sorted(fields))}")
-    return overrides.typed_fields(AgentConfig, data.get("agent", {}), "--set agent.", skip=("kind",))
+    return parse(items)
 
 
 def train_config(args: argparse.Namespace) -> TrainConfig:

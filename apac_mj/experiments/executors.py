@@ -18,11 +18,13 @@ import ctypes
 import multiprocessing
 import os
 import signal
+import subprocess
 import sys
 import threading
 import time
 import traceback
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any
 
 from tqdm.auto import tqdm
@@ -200,58 +202,22 @@ class RayExecutor:
         return True
 
 
-#: Run by :func:`_ray_watchdog`: every second, note the driver's descendants (PID and start time); once the
-#: driver is gone, SIGKILL those still running (the same PID and start time: not a reused PID).
-_WATCHDOG = r"""
-import os, signal, sys, time
-driver, me = int(sys.argv[1]), os.getpid()
-def stat(pid):
-    try:
-        return open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()
-    except OSError:
-        return None
-def children(pid):
-    out = []
-    for task in os.listdir(f"/proc/{pid}/task") if os.path.isdir(f"/proc/{pid}/task") else []:
-        try:
-            out += [int(c) for c in open(f"/proc/{pid}/task/{task}/children").read().split()]
-        except OSError:
-            pass
-    return out
-known = {}
-while True:
-    s = stat(driver)
-    if s is not None and s[0] != "Z":
-        todo, seen = children(driver), {}
-        while todo:
-            p = todo.pop()
-            if p != me and p not in seen and (ps := stat(p)) is not None:
-                seen[p] = ps[19]
-                todo += children(p)
-        known = seen
-        time.sleep(1.0)
-        continue
-    for p, start in known.items():
-        ps = stat(p)
-        if ps is not None and ps[19] == start:
-            try:
-                os.kill(p, signal.SIGKILL)
-            except OSError:
-                pass
-    break
-"""
+#: Where :func:`apac_mj.experiments.grid.run_grid` runs its cells.
+Executor = LocalExecutor | RayExecutor
+
+#: The directory holding this apac_mj package: the watchdog starts there, so ``-m`` finds this same package.
+_PACKAGE_PARENT = str(Path(__file__).resolve().parents[2])
 
 
-def _ray_watchdog() -> Any:
-    """A process that stops the local Ray instance's processes if this process (the driver) dies without
-    shutting it down (kill -9): Ray's own agents outlive their driver by a minute or more (they wait 60 s
-    to report the death to the gone GCS). Linux only (/proc); elsewhere None."""
-    import subprocess
-
+def _ray_watchdog() -> subprocess.Popen[bytes] | None:
+    """A process (:mod:`apac_mj.experiments.watchdog`) that stops the local Ray instance's processes if this
+    process (the driver) dies without shutting it down (kill -9): Ray's own agents outlive their driver by a
+    minute or more (they wait 60 s to report the death to the gone GCS). Linux only (/proc); elsewhere None."""
     if not os.path.isdir(f"/proc/{os.getpid()}/task"):
         return None
-    return subprocess.Popen([sys.executable, "-c", _WATCHDOG, str(os.getpid())], start_new_session=True,
-                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    return subprocess.Popen([sys.executable, "-m", "apac_mj.experiments.watchdog", str(os.getpid())],
+                            start_new_session=True, cwd=_PACKAGE_PARENT, stdin=subprocess.DEVNULL,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
 
 def import_ray() -> Any:
@@ -268,7 +234,7 @@ def _report(bar: tqdm, on_result: OnResult, res: dict[str, Any]) -> None:
     bar.set_postfix_str(f"{res['cell']}: {res['status']}")
 
 
-def make_executor(name: str, workers: int = 1, ray_address: str | None = None) -> LocalExecutor | RayExecutor:
+def make_executor(name: str, workers: int = 1, ray_address: str | None = None) -> Executor:
     """``--executor`` to an executor: "local" or "ray"."""
     if name == "local":
         if ray_address:

@@ -31,11 +31,12 @@ from typing import Any
 
 from apac_mj import kinds
 from apac_mj.config import TrainConfig, migrate, to_dict, train_config_from_dict
-from apac_mj.experiments.executors import LocalExecutor
+from apac_mj.experiments.executors import Executor, LocalExecutor
 from apac_mj.util.files import atomic_write_text, jsonable as _jsonable, read_json, remove_stale_temporaries
 from apac_mj.experiments.presets import TRAIN_REGION_SUFFIX, Preset
 from apac_mj.experiments.results import CELL_FILE, MANIFEST
-from apac_mj.run.run_dir import RunDir, diff, say, validate
+from apac_mj.run.build import check
+from apac_mj.run.run_dir import RunDir, diff, say
 from apac_mj.util.lock import locked
 
 #: The way out for a damaged cell.json.
@@ -145,7 +146,7 @@ def prepare_cell(cell: Cell, preset: Preset, results: Path) -> Path:
 def check_grid(preset: Preset, results: Path) -> dict[str, tuple[str, str]]:
     """Every cell's status; raises ValueError naming every refused cell or invalid run (nothing is written)."""
     for c in cells(preset):
-        validate(c.train_config(preset))  # devices, seeds, the task and its overrides: before anything runs
+        check(c.train_config(preset))  # devices, seeds, the task and its overrides: before anything runs
     statuses = {c.name: cell_status(c, preset, Path(results)) for c in cells(preset)}
     refused = [why for status, why in statuses.values() if status == "refused"]
     if refused:
@@ -181,7 +182,8 @@ def _evaluate(cell_dir: Path, protocols: tuple[str, ...], limit: int) -> None:
 
 # -- the grid ------------------------------------------------------------------------
 
-def run_grid(preset: Preset, results: str | Path, executor: Any = None, progress: bool = True) -> dict[str, Any]:
+def run_grid(preset: Preset, results: str | Path, executor: Executor | None = None,
+             progress: bool = True) -> dict[str, Any]:
     """Run every unfinished cell with ``executor`` (default: LocalExecutor) and keep the manifest current."""
     results = Path(results)
     check_grid(preset, results)  # before anything is created
@@ -190,7 +192,7 @@ def run_grid(preset: Preset, results: str | Path, executor: Any = None, progress
         return _run_grid(preset, results, executor, progress)
 
 
-def _run_grid(preset: Preset, results: Path, executor: Any, progress: bool) -> dict[str, Any]:
+def _run_grid(preset: Preset, results: Path, executor: Executor | None, progress: bool) -> dict[str, Any]:
     """:func:`run_grid` as the results directory's one grid."""
     executor = executor or LocalExecutor()
     grid_cells = cells(preset)
@@ -220,7 +222,8 @@ def _run_grid(preset: Preset, results: Path, executor: Any, progress: bool) -> d
     return manifest
 
 
-def _new_manifest(preset: Preset, grid_cells: list[Cell], dirs: dict[str, Path], executor: Any) -> dict[str, Any]:
+def _new_manifest(preset: Preset, grid_cells: list[Cell], dirs: dict[str, Path],
+                  executor: Executor) -> dict[str, Any]:
     cells_info = {}
     for c in grid_cells:
         status = "done" if cell_done(dirs[c.name]) else "pending"

@@ -23,7 +23,7 @@ from typing import Any
 
 from apac_mj import kinds
 from apac_mj.util import overrides, paths
-from apac_mj.config import AgentConfig, TrainConfig
+from apac_mj.config import ACTUATIONS, DEVICES, PRECISION_REQUESTS, AgentConfig, TrainConfig
 
 #: The paper's four training conditions (task files in tasks/).
 CONDITIONS = (
@@ -76,10 +76,9 @@ class Preset:
     #: spin at barriers and were 25x slower on a loaded 2-core machine.
     threads: int = 1
     tests: Tests = Tests()
-    #: The run every cell trains (its task is the cell's): the file's run keys and [agent] table applied.
+    #: The run every cell trains (its task is the cell's): the file's run keys and [agent] table applied
+    #: (the table's AgentConfig overrides are ``run.agent``; each cell sets the kind).
     run: TrainConfig = dataclasses.field(default_factory=lambda: TrainConfig(**DEFAULT_RUN))
-    #: The [agent] table as the file (and --set) gave it: AgentConfig overrides, typed.
-    agent: dict[str, Any] = dataclasses.field(default_factory=dict)
 
     def __post_init__(self) -> None:
         _check_subset(self.name, "agents", self.agents, kinds.names())
@@ -148,8 +147,8 @@ def preset_names() -> list[str]:
 
 
 def top_level_keys() -> set[str]:
-    """The keys a preset file has at its top level (tables included)."""
-    return ({f.name for f in dataclasses.fields(Preset)} - {"name", "run"}) | set(RUN_FIELDS)
+    """The keys a preset file has at its top level (tables included; ``agent`` is the run's [agent] table)."""
+    return ({f.name for f in dataclasses.fields(Preset)} - {"name", "run"}) | set(RUN_FIELDS) | {"agent"}
 
 
 def load_preset(name_or_path: str | Path, overrides_: Sequence[str] = ()) -> Preset:
@@ -185,9 +184,8 @@ def preset_from_dict(data: dict[str, Any], name: str = "<dict>") -> Preset:
     for key in ("agents", "conditions"):
         if key in data:
             data[key] = _names(data[key])
-    agent = _agent_table(data.pop("agent", {}), name)
-    run = _run(data, agent, name)
-    return Preset(name=name, tests=tests, agent=agent, run=run, **data)
+    run = _run(data, _agent_table(data.pop("agent", {}), name), name)
+    return Preset(name=name, tests=tests, run=run, **data)
 
 
 def _tests(tests: Any, name: str) -> Tests:
@@ -222,6 +220,18 @@ def _agent_table(agent: Any, name: str) -> dict[str, Any]:
         raise PresetError(f"preset {name!r}: {e}") from None
 
 
+def agent_overrides(items: Sequence[str]) -> dict[str, Any]:
+    """``KEY=VALUE`` strings (``NAME`` or ``agent.NAME``) -> AgentConfig keyword arguments, for scripts that
+    build their own configs (bench/learning.py): the grammar of an [agent] table and of ``--set``, typed by the
+    field, an unknown name or a bad value refused (:class:`~apac_mj.util.overrides.OverrideError`)."""
+    fields = _agent_fields()
+    data = overrides.apply_sets({}, items, agent_fields=fields, top_level=())
+    stray = sorted(set(data) - {"agent"})
+    if stray:
+        raise overrides.OverrideError(f"--set: unknown AgentConfig field(s) {stray}; known: {', '.join(sorted(fields))}")
+    return overrides.typed_fields(AgentConfig, data.get("agent", {}), "--set agent.", skip=("kind",))
+
+
 def _run(data: dict[str, Any], agent: dict[str, Any], name: str) -> TrainConfig:
     """The preset's run (popping its keys from ``data``), every value checked before anything runs."""
     run = {**DEFAULT_RUN, **{k: data.pop(k) for k in RUN_FIELDS if k in data}}
@@ -229,9 +239,9 @@ def _run(data: dict[str, Any], agent: dict[str, Any], name: str) -> TrainConfig:
         if key in run and (not isinstance(run[key], int) or isinstance(run[key], bool) or run[key] < 1):
             raise PresetError(f"preset {name!r}: {key} must be an int >= 1, got {run[key]!r}")
     if "device" in run:
-        _check_subset(name, "device", (str(run["device"]).split(":")[0],), ("cpu", "cuda"))
-    _check_subset(name, "precision", (run.get("precision", "fp32"),), ("fp32", "bf16", "auto"))
-    _check_subset(name, "actuation", (run.get("actuation", "servo"),), ("servo", "kinematic"))
+        _check_subset(name, "device", (str(run["device"]).split(":")[0],), DEVICES)
+    _check_subset(name, "precision", (run.get("precision", "fp32"),), PRECISION_REQUESTS)
+    _check_subset(name, "actuation", (run.get("actuation", "servo"),), ACTUATIONS)
     try:
         run["seeds"] = overrides.parse_seeds(run["seeds"])
         typed = overrides.typed_fields(TrainConfig, run, "", skip=("agent", "task"))

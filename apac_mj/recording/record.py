@@ -20,11 +20,13 @@ from apac_mj.agent.agent import Agent
 from apac_mj.config import AgentConfig, TrainConfig
 from apac_mj.kinematics import Geometry
 from apac_mj.recording.recording import RENDER, EpisodeRecorder, read_recording
+from apac_mj.run.build import environments, load_run, make_agent
 from apac_mj.run.rollout import EpisodeLoop, FunctionHook, Hook
-from apac_mj.run.run_dir import RunDir, config_dict, load_run, say, task_sizes, training_env
+from apac_mj.run.run_dir import RunDir, config_dict, say
 from apac_mj.suite import spec_for
 from apac_mj.suite.render import write_video
 from apac_mj.suite.vec_env import VecEnv
+from apac_mj.types import StepInfo
 
 
 @dataclasses.dataclass(frozen=True)
@@ -50,9 +52,8 @@ def record(out: str | Path, run: str | Path | None = None, task: str | None = No
     """
     out, video = Path(out), None if video is None else Path(video)
     _check(out, run, video, episodes, fps, seed, member)
-    cfg, net, first, env_state, running = load_agent(run, task, agent, seed, member, as_episode)
+    cfg, net, env, first, running = load_agent(run, task, agent, seed, member, as_episode)
     member = member if run is not None else 0
-    env = rollout_env(cfg, seed, env_state)
     with EpisodeRecorder(out.parent, 1, config_dict(cfg), member=member, out=out,
                          keep_frames=video is not None) as recorder:
         frozen_episodes(cfg, net, env, running, first, episodes, recorder, progress)
@@ -67,11 +68,10 @@ def reached_targets(run: str | Path, episodes: int, as_episode: int | None = Non
     learning, the run's environments where training left off). Nothing is written."""
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
-    cfg, net, first, env_state, running = load_agent(run, None, None, 0, 0, as_episode)
-    env = rollout_env(cfg, 0, env_state)
+    cfg, net, env, first, running = load_agent(run, None, None, 0, 0, as_episode)
     reached = np.zeros((env.E, episodes), dtype=bool)
 
-    def on_step(info: Any, _: VecEnv) -> None:
+    def on_step(info: StepInfo, _: VecEnv) -> None:
         reached[:, k] |= info.done & info.reached
 
     def on_episode_start(members: np.ndarray, _: VecEnv) -> None:
@@ -116,27 +116,37 @@ def _check(out: Path, run: str | Path | None, video: Path | None, episodes: int,
 
 
 def load_agent(run: str | Path | None, task: str | None, agent: str | None, seed: int, member: int,
-               as_episode: int | None) -> tuple[TrainConfig, Agent, int, dict[str, Any] | None, dict[str, Any]]:
-    """(config, agent, first arbitrator episode, the run's environment state or None, the arbitrator's and
-    the integrator's running statistics): from a run's newest checkpoint (on the CPU in fp32), or fresh
-    networks seeded from ``seed``."""
+               as_episode: int | None) -> tuple[TrainConfig, Agent, VecEnv, int, dict[str, Any]]:
+    """(config, agent, environments, first arbitrator episode, the arbitrator's and the integrator's running
+    statistics): from a run's newest checkpoint (on the CPU in fp32) in the run's environments where training
+    left off (fresh ones seeded from ``seed`` when ``task`` names another task), or fresh networks seeded from
+    ``seed`` in fresh environments."""
     if run is None:
         cfg = TrainConfig(task=task or "changing_target", seeds=(seed,), agent=AgentConfig(kind=agent or kinds.DEFAULT))
-        net = Agent(cfg.agent, cfg.seeds, geometry=Geometry.from_spec(spec_for(cfg)), sizes=task_sizes(cfg))
-        return cfg, net, cfg.agent.planning_episodes if as_episode is None else as_episode, None, {}
-    cfg, net, ckpt = load_run(run, device="cpu", precision="fp32")
+        spec = spec_for(cfg)
+        env = environments(cfg, spec, training=False)
+        net = make_agent(cfg, spec, env.sizes)
+        return cfg, net, env, cfg.agent.planning_episodes if as_episode is None else as_episode, {}
+    cfg = RunDir(run).train_config()
     if member >= len(cfg.seeds):
         raise ValueError(f"--member {member} out of range: the run has {len(cfg.seeds)} seeds {list(cfg.seeds)}")
     trained_kind = cfg.agent.kind
     _say_overrides(run, task, agent, seed, cfg)
+    other_task = task not in (None, cfg.task)
+    env = None
+    if other_task:  # fresh environments of that task, seeded from --seed
+        cfg = dataclasses.replace(cfg, task=task)
+        env = environments(cfg, spec_for(cfg), seeds=[seed + k for k in range(len(cfg.seeds))], training=False)
+    loaded = load_run(run, device="cpu", precision="fp32", env=env)
+    if not other_task:  # the run's environments where training left off: lengths, targets, sequence
+        loaded.env.set_state(loaded.ckpt.env)
     if agent is not None:
-        cfg.agent.kind = kinds.get(agent).name
-    env_state = ckpt.env if task in (None, cfg.task) else None
-    cfg.task = task or cfg.task
-    running = ckpt.running_statistics()
+        cfg = dataclasses.replace(cfg, agent=dataclasses.replace(cfg.agent, kind=kinds.get(agent).name))
+    running = loaded.ckpt.running_statistics()
     if agent not in (None, trained_kind):
         running.pop("arbitrator", None)  # re-arbitrated as another kind: its own rule starts fresh
-    return cfg, net, max(ckpt.member_episode(member), 0) if as_episode is None else as_episode, env_state, running
+    first = max(loaded.ckpt.member_episode(member), 0) if as_episode is None else as_episode
+    return cfg, loaded.agent, loaded.env, first, running
 
 
 def _say_overrides(run: str | Path, task: str | None, agent: str | None, seed: int, cfg: TrainConfig) -> None:
@@ -156,16 +166,6 @@ def _say_overrides(run: str | Path, task: str | None, agent: str | None, seed: i
                              "trained plane, shoulder and joint range, or train on this one")
         say(f"note: {run} trained on {cfg.task}; recording on {task} (--task) with fresh environments "
             f"seeded from --seed {seed}, not the run's")
-
-
-def rollout_env(cfg: TrainConfig, seed: int, env_state: dict[str, Any] | None) -> VecEnv:
-    """The run's environments where training left off (``env_state``), else fresh ones seeded from ``seed``."""
-    if env_state is None:
-        return VecEnv(cfg.task, [seed + k for k in range(len(cfg.seeds))], actuation=cfg.actuation,
-                      overrides=dict(cfg.task_overrides))
-    env = training_env(cfg)  # built as the trainer builds it, then restored: lengths, targets, sequence
-    env.set_state(env_state)
-    return env
 
 
 def _frames(path: Path) -> int:

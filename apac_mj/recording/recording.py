@@ -29,7 +29,8 @@ from apac_mj.kinematics import DEFAULT_ORIGIN, motion_function
 from apac_mj.run.rollout import Hook
 from apac_mj.run.run_dir import git_commit
 from apac_mj.suite.render import Renderer, encode_jpeg
-from apac_mj.types import StepInfo
+from apac_mj.suite.task_spec import TaskSpec
+from apac_mj.types import POSITIONS, StepInfo
 from apac_mj.util.files import current_umask, remove_stale_temporaries, temporary_name
 
 if TYPE_CHECKING:
@@ -57,7 +58,7 @@ DISTANCE = "series/distance"
 ABS_DELTA = "series/arbitration/abs_delta"
 DELTA_THRESHOLD = "series/arbitration/threshold"
 CONTROLLER = "series/arbitration/controller"
-#: The arbitrator's decision inputs, one series each: ``ARBITRATION_INPUTS/<name>`` (the rule's ``last_inputs``).
+#: The arbitrator's decision inputs, one series each: ``ARBITRATION_INPUTS/<name>`` (``Decision.inputs``).
 ARBITRATION_INPUTS = "series/arbitration/inputs"
 #: The integrator's error: mean over hand, elbow and target of |estimate - truth| (cm).
 ESTIMATE_ERROR = "series/state_estimate_error"
@@ -165,7 +166,7 @@ class StepRecord:
             reward=float(at("reward")), distance=float(at("distance")), delta=float(at("delta")),
             habit=bool(at("habit")), predicted_arm=_f64(at("predicted_arm")),
             vision=bool(at("vision")), reached=bool(at("reached")), done=bool(at("done")),
-            estimated_state=_f64(np.asarray(info.next_state)[member, :6]),  # the positions (not proprioception)
+            estimated_state=_f64(np.asarray(info.next_state)[member, POSITIONS]),  # not the plant's extra
             arbitration={k: float(np.asarray(v)[member]) for k, v in getattr(info, "arbitration", {}).items()},
         )
 
@@ -295,7 +296,7 @@ class Recording:
 
     def __init__(self, path: str | Path, config: dict[str, Any] | None = None, *, name: str = "rollout",
                  origin: Sequence[float] = DEFAULT_ORIGIN, plane_size: Sequence[float] = (30.0, 30.0),
-                 zone_radius: float = 0.5, delta_threshold: float = 1.0) -> None:
+                 zone_radius: float = TaskSpec.zone_radius, delta_threshold: float = 1.0) -> None:
         self.path = Path(path)
         if self.path.suffix != ".rrd":
             raise ValueError(f"recording file must end in .rrd, got {str(path)!r}")
@@ -614,8 +615,8 @@ class EpisodeRecorder(Hook):
     --record-every N`` does it), :func:`apac_mj.run.evaluate.evaluate` or
     :class:`apac_mj.run.rollout.EpisodeLoop`, and close it (or use it as a context manager)
     when the loop is done. Only recorded episodes
-    are rendered. Episode ``e`` counts training episodes (babbling negative):
-    the member's reset count minus ``config["agent"]["babbling_episodes"]``.
+    are rendered. Episode ``e`` counts training episodes (babbling negative), as the environments count
+    them (:meth:`apac_mj.suite.vec_env.VecEnv.episode`: the reset count minus their episode offset).
 
     Args:
       directory: where one ``episode_XXXXXX.rrd`` per recorded episode goes (ignored with ``out``).
@@ -635,7 +636,6 @@ class EpisodeRecorder(Hook):
         self.directory, self.record_every, self.member = Path(directory), int(record_every), int(member)
         self.config = dict(config or {})
         agent_cfg = self.config.get("agent", {})
-        self.babbling = int(agent_cfg.get("babbling_episodes", 0))
         self.delta_threshold = float(agent_cfg.get("delta_threshold", 1.0))
         self.out = None if out is None else Path(out)
         self.keep_frames = keep_frames
@@ -656,7 +656,7 @@ class EpisodeRecorder(Hook):
             raise ValueError(f"member {m} out of range: the ensemble has {vec_env.E} members")
         if not bool(np.asarray(members)[m]):
             return
-        episode = vec_env.reach_task(m).episode - self.babbling
+        episode = vec_env.episode(m)
         self._recording_episode = episode % self.record_every == 0
         if not self._recording_episode:
             return

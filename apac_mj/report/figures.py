@@ -18,6 +18,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 
+from apac_mj import types
 from apac_mj.kinematics import motion_function
 from apac_mj.report.labels import (AGENT_COLOR, AGENT_LABEL, agents, arbitrating, condition_colors, condition_label,
                                    condition_order, condition_short, condition_spec, episodes)
@@ -26,6 +27,7 @@ from apac_mj.report.quantities import (CROSSING_WINDOW, HABIT_THRESHOLD, LATE_FR
 from apac_mj.report.stats import BOOTSTRAP_SEED, LEVEL
 from apac_mj.suite.task_spec import TaskSpec
 from apac_mj.types import PLANNING_COST
+from apac_mj.util.registry import Registry
 
 #: Up to this many seeds each seed is drawn as a thin line (and listed in report.md), beyond it a band.
 LIST_SEEDS = 10
@@ -65,32 +67,30 @@ class FigureSpec:
     applies: Callable[[ReportData], bool] = lambda data: True
 
 
-_FIGURES: dict[str, FigureSpec] = {}
+_FIGURES: Registry[FigureSpec] = Registry(
+    "figure", duplicate="a figure {name!r} is already registered (pass replace=True to redefine it)")
 
 
 def register_figure(spec: FigureSpec, replace: bool = False) -> FigureSpec:
     """Add a figure to every report written from now on (in this process), after those already registered;
     ``replace=True`` redefines a registered one in its place."""
-    if spec.file in _FIGURES and not replace:
-        raise ValueError(f"a figure {spec.file!r} is already registered (pass replace=True to redefine it)")
+    if not replace:
+        _FIGURES.check_new(spec.file)
     if not spec.file.endswith((".png", ".svg", ".pdf")):
         raise ValueError(f"figure file must end in .png, .svg or .pdf, got {spec.file!r}")
     if not (callable(spec.draw) and callable(spec.applies)):
         raise ValueError(f"figure {spec.file!r}: draw and applies must be callable")
-    _FIGURES[spec.file] = spec
-    return spec
+    return _FIGURES.replace(spec.file, spec)
 
 
 def unregister_figure(file: str) -> None:
     """Remove a registered figure (the paper's included) from the reports written from now on."""
-    if file not in _FIGURES:
-        raise KeyError(f"no figure {file!r} is registered; registered: {', '.join(_FIGURES) or 'none'}")
-    del _FIGURES[file]
+    _FIGURES.unregister(file)
 
 
 def registered_figures() -> list[FigureSpec]:
     """Every registered figure, in the order a report draws and lists them."""
-    return list(_FIGURES.values())
+    return _FIGURES.values()
 
 
 # -- drawing helpers -------------------------------------------------------------------
@@ -481,8 +481,9 @@ def fig_scoreboard(data: ReportData, path: Path) -> Path:
 
 
 #: The training losses of Fig. 10: (metrics column, panel label).
-LOSSES = (("critic_loss", "critic: TD loss"), ("actor_loss", "actor: -Q(s, pi(s)) (+ penalty)"),
-          ("forward_loss", "forward model: MSE (cm^2)"), ("inverse_loss", "inverse model: MSE (deg^2)"))
+LOSSES = tuple((f"{name}_loss", label) for name, label in zip(
+    types.LOSSES, ("critic: TD loss", "actor: -Q(s, pi(s)) (+ penalty)", "forward model: MSE (cm^2)",
+                   "inverse model: MSE (deg^2)"), strict=True))
 
 
 def fig_losses(data: ReportData, path: Path) -> Path:

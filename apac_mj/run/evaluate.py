@@ -35,15 +35,16 @@ import pandas as pd
 from tqdm.auto import tqdm
 
 from apac_mj.agent.agent import Agent
-from apac_mj.types import HABIT_COST, PLANNING_COST  # the time cost of one action (re-exported here)
 from apac_mj.config import TrainConfig
 from apac_mj.kinematics import angle_grid, motion_function
 from apac_mj.kinds import arbitrator_for, get as get_kind
-from apac_mj.run.rollout import EpisodeLoop, Hook, OnEpisodeStart, OnStep, as_hooks
-from apac_mj.run.run_dir import RunDir, load_run
+from apac_mj.run.build import environments, load_run
+from apac_mj.run.rollout import EpisodeLoop, EpisodeState, Hook, OnEpisodeStart, OnStep, as_hooks
+from apac_mj.run.run_dir import RunDir
 from apac_mj.suite import spec_for
 from apac_mj.suite.task_spec import TaskSpec
 from apac_mj.suite.vec_env import VecEnv
+from apac_mj.types import HABIT_COST, PLANNING_COST
 
 PROTOCOLS = ("grid", "occluded", "generalization")
 #: Environment zone radius in the occluded protocol: its reach test never fires.
@@ -80,8 +81,13 @@ def evaluate(run_dir: str | Path, protocols: Sequence[str] = ("grid", "occluded"
 def _evaluate(run: RunDir, protocols: Sequence[str], region: str | None, device: str | None, progress: bool,
               hooks: Sequence[Hook], limit: int | None) -> dict[str, Any]:
     """:func:`evaluate` as the run's one writer."""
-    cfg, agent, ckpt = load_run(run.path, device)
-    spec = spec_for(cfg)
+    cfg = run.train_config()
+    spec = spec_for(cfg)  # the task, read once for every protocol
+    kind = get_kind(cfg.agent.kind)
+    tested = [p for p in protocols if p != "occluded" or kind.acts_occluded]
+    first = None if not tested else eval_env(cfg, spec, None, tested[0] == "occluded")
+    loaded = load_run(run.path, device, env=first, spec=spec)
+    agent, ckpt = loaded.agent, loaded.ckpt
     lengths, own = ckpt.member_lengths(), ckpt.member_targets()
     try:
         summary = run.eval_summary()
@@ -90,16 +96,16 @@ def _evaluate(run: RunDir, protocols: Sequence[str], region: str | None, device:
     summary.update(run_dir=str(run.path), agent=cfg.agent.kind, task=cfg.task, seeds=list(cfg.seeds),
                    finished=run.finished())
     for protocol in protocols:
-        kind = get_kind(cfg.agent.kind)
-        if protocol == "occluded" and not kind.acts_occluded:
+        if protocol not in tested:
             reason = kind.occluded_reason or f"{kind.label} does not act without vision"
             summary.setdefault("protocols", {})[protocol] = {"applicable": False, "reason": reason}
             continue
         reg = "test" if protocol == "generalization" else region
         targets = evaluation_targets(spec, lengths, own, grid_only=protocol == "generalization", region=reg)
         targets = [t[:limit] for t in targets] if limit is not None else targets
+        env = loaded.env if protocol == tested[0] else eval_env(cfg, spec, None, protocol == "occluded")
         rows = run_protocol(cfg, agent, spec, lengths, targets, occluded=protocol == "occluded",
-                            progress=progress, hooks=hooks, running=ckpt.running_statistics())
+                            progress=progress, hooks=hooks, running=ckpt.running_statistics(), env=env)
         df = pd.DataFrame(rows)
         if protocol == "occluded":
             df = df.drop(columns=["path_x", "path_y"])
@@ -138,27 +144,32 @@ def evaluation_targets(spec: TaskSpec, lengths: np.ndarray, own: list[Any], grid
 _CLEAN_VISION = {"vision_noise_std": 0.0, "vision_seen_probability": 1.0}
 
 
-def _eval_env(cfg: TrainConfig, spec: TaskSpec, lengths: np.ndarray, occluded: bool) -> VecEnv:
-    overrides: dict[str, Any] = {**cfg.task_overrides, "growth_start_episode": 2**31 - 1}
+def eval_env(cfg: TrainConfig, spec: TaskSpec, lengths: np.ndarray | None, occluded: bool) -> VecEnv:
+    """The environments of a frozen test: the run's task with its vision for the protocol, no change of the
+    kinematics; the members' link lengths set to ``lengths`` (None: set later, by :func:`run_protocol`)."""
+    overrides: dict[str, Any] = {"growth_start_episode": 2**31 - 1}
     if occluded:
         overrides.update(vision="occluded", zone_radius=_NO_REACH_RADIUS, **_CLEAN_VISION)
     elif spec.vision == "occluded":
         overrides.update(vision="perfect", **_CLEAN_VISION)
     if spec.kinematics_mode == "static":
         overrides["kinematics_mode"] = "changing"  # keep the lengths set below across resets
-    env = VecEnv(cfg.task, list(cfg.seeds), cfg.actuation, overrides=overrides)
-    env.set_link_lengths(lengths)
+    env = environments(cfg, spec.replace(**overrides), training=False)
+    if lengths is not None:
+        env.set_link_lengths(lengths)
     return env
 
 
 def run_protocol(cfg: TrainConfig, agent: Agent, spec: TaskSpec, lengths: np.ndarray, targets: list[np.ndarray],
                  occluded: bool, progress: bool = False, hooks: Sequence[Hook] = (),
-                 running: dict[str, Any] | None = None) -> list[dict[str, Any]]:
+                 running: dict[str, Any] | None = None, env: VecEnv | None = None) -> list[dict[str, Any]]:
     """Episode ``i`` of every member goes to its ``targets[k][i]``; all members side by side.
 
     The arbitrator and the integrator start from ``running`` (the checkpoint's running statistics,
-    :meth:`apac_mj.run.run_dir.RunCheckpoint.running_statistics`) and keep them frozen, like the networks."""
-    env = _eval_env(cfg, spec, lengths, occluded)
+    :meth:`apac_mj.run.run_dir.RunCheckpoint.running_statistics`) and keep them frozen, like the networks.
+    ``env``: the protocol's environments (default: built here); their link lengths are set to ``lengths``."""
+    env = eval_env(cfg, spec, None, occluded) if env is None else env
+    env.set_link_lengths(lengths)
     episodes = EpisodeLoop(agent, arbitrator_for(cfg.agent), env, zone_radius=spec.zone_radius, hooks=hooks,
                            adapt=False)
     episodes.load_state_dict(running or {})
@@ -187,7 +198,7 @@ def _episode(cfg: TrainConfig, episodes: EpisodeLoop, spec: TaskSpec, members: n
     return [_row(env, k, index, st, path, spec.zone_radius, bool(judged[k])) for k in np.flatnonzero(members)]
 
 
-def _row(env: VecEnv, k: int, index: int, st: Any, path: list[list[np.ndarray]], zone_radius: float,
+def _row(env: VecEnv, k: int, index: int, st: EpisodeState, path: list[list[np.ndarray]], zone_radius: float,
          judged: bool) -> dict[str, Any]:
     """One result row; ``judged_reached``: the episode ended because the agent judged the target
     reached (with vision: it was; occluded: the forward model's estimate was inside the zone)."""

@@ -38,7 +38,8 @@ import torch
 from apac_mj.agent.arbitration import HISTORY, push_delta
 from apac_mj.agent import integrator as integrators
 from apac_mj.suite.vec_env import VecEnv
-from apac_mj.types import ArbitrationContext, Arbitrator, Decision, Integrator, Observation, Policy, StepInfo
+from apac_mj.types import (ARM, END, EXTRA, POSITION_DIM, POSITIONS, TARGET, ArbitrationContext, Arbitrator, Decision,
+                           Integrator, Observation, Policy, StepInfo, StepTensors)
 
 
 #: A hook's methods as plain functions: ``on_step(info, vec_env)``, ``on_episode_start(members, vec_env)``.
@@ -83,6 +84,21 @@ def observed_state(obs: Observation, device: torch.device) -> torch.Tensor:
     return torch.as_tensor(np.concatenate([obs.arm, obs.target], axis=1), dtype=torch.float32, device=device)
 
 
+def _observed_step(obs: Observation, active: np.ndarray,
+                   device: torch.device) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """A step's observation on the agent's device through one host-to-device copy: the observed positions
+    ``[E, 6]`` (float32, :func:`observed_state`'s), ``vision``, the reward (float32), ``reached`` and ``active``
+    (``[E]`` each; the flags as bools). Every value is the one converting each array alone gives (float32 of the
+    same numbers; 0/1 back to bools)."""
+    packed = torch.as_tensor(np.concatenate([obs.arm, obs.target, obs.reward[:, None], obs.vision[:, None],
+                                             obs.reached[:, None], np.asarray(active)[:, None]], axis=1),
+                             dtype=torch.float32, device=device)
+    # columns: the 6 positions (the state's layout), then the reward, vision, reached, active
+    seen = packed[:, POSITIONS].contiguous()
+    vision, reached, active_t = packed[:, 7] != 0, packed[:, 8] != 0, packed[:, 9] != 0
+    return seen, vision, packed[:, 6], reached, active_t
+
+
 def with_extra(positions: torch.Tensor, vec_env: VecEnv) -> torch.Tensor:
     """``[E, 6]`` positions followed by the task's extra observations (``vec_env.extra``, e.g. joint
     velocities): the agent's state; the positions alone for the paper's tasks."""
@@ -96,7 +112,7 @@ def with_extra(positions: torch.Tensor, vec_env: VecEnv) -> torch.Tensor:
 class EpisodeState:
     """What every member carries from step to step within its episode (the one copy of this bookkeeping)."""
 
-    state: torch.Tensor          # [E, 6] the integrator's state estimate the agent acts on
+    state: torch.Tensor          # [E, 6 + extra] the state the agent acts on (apac_mj.types: END, TARGET, ...)
     step: np.ndarray             # [E] steps taken in the current episode
     last_delta: np.ndarray       # [E] TD error of the member's last transition (NaN: none this episode)
     ret: np.ndarray              # [E] return so far in the episode
@@ -115,7 +131,7 @@ class EpisodeState:
         self.estimate_error_sum = np.zeros(E) if self.estimate_error_sum is None else self.estimate_error_sum
 
     @staticmethod
-    def fresh_fields(E: int, device: torch.device, state_dim: int = 6) -> dict[str, Any]:
+    def fresh_fields(E: int, device: torch.device, state_dim: int = POSITION_DIM) -> dict[str, Any]:
         """Keyword arguments of a carry at the start of nothing (every member to be reset); ``state_dim``:
         the agent's (6, the paper's, plus the task's extra observations)."""
         return dict(state=torch.zeros(E, state_dim, device=device), step=np.zeros(E, dtype=np.int64),
@@ -123,11 +139,11 @@ class EpisodeState:
                     plan_n=np.zeros(E, dtype=np.int64))
 
     @classmethod
-    def fresh(cls, E: int, device: torch.device, state_dim: int = 6) -> "EpisodeState":
+    def fresh(cls, E: int, device: torch.device, state_dim: int = POSITION_DIM) -> "EpisodeState":
         return cls(**cls.fresh_fields(E, device, state_dim))
 
     def reset(self, mask: np.ndarray, seen: torch.Tensor) -> None:
-        """Start a new episode for the members in ``mask`` from the ``seen`` state ``[E, 6]``."""
+        """Start a new episode for the members in ``mask`` from the ``seen`` state ``[E, 6 + extra]``."""
         rows = torch.as_tensor(mask, device=self.state.device)
         self.state = torch.where(rows[:, None], seen, self.state)
         self.step[mask], self.last_delta[mask], self.ret[mask] = 0, np.nan, 0.0
@@ -136,15 +152,17 @@ class EpisodeState:
         self.estimate_error_sum[mask] = 0.0
 
     def advance(self, info: StepInfo, mask: np.ndarray, counted: np.ndarray | None = None,
-                next_state: np.ndarray | None = None) -> None:
+                next_state: torch.Tensor | np.ndarray | None = None) -> None:
         """Carry the members in ``mask`` past the step in ``info``: state (``next_state``, default the
         integrator's), TD errors, vision, forward error, return, step; habit/planning counts for ``counted``."""
         counted = mask if counted is None else counted
-        nxt = torch.as_tensor(info.next_state if next_state is None else next_state, device=self.state.device)
+        if next_state is None:  # the integrator's, on the device already (or from the numpy of a hand-made record)
+            next_state = info.next_state if info.tensors is None else info.tensors.next_state
+        nxt = torch.as_tensor(next_state, device=self.state.device)
         self.state = torch.where(torch.as_tensor(mask, device=self.state.device)[:, None], nxt, self.state)
         self.last_delta = np.where(mask, info.delta, self.last_delta)
         self.recent_deltas = push_delta(self.recent_deltas, info.delta, mask)
-        error = np.linalg.norm((info.predicted_arm - info.next_state[:, :4]).reshape(-1, 2, 2), axis=-1).mean(-1)
+        error = np.linalg.norm((info.predicted_arm - info.next_state[:, ARM]).reshape(-1, 2, 2), axis=-1).mean(-1)
         self.forward_error = np.where(mask & info.vision, error, self.forward_error)
         self.vision = np.where(mask, info.vision, self.vision)
         self.ret += np.where(mask, info.reward, 0.0)
@@ -153,12 +171,13 @@ class EpisodeState:
         self.plan_n += counted & ~info.habit
         self.step += mask
 
-    def context(self, episode: np.ndarray, agent: Policy, zone_radius: float = 0.5) -> ArbitrationContext:
-        """The arbitrator's view of every member at this step (``episode`` as the arbitrator reads it)."""
+    def context(self, episode: np.ndarray, agent: Policy, zone_radius: float) -> ArbitrationContext:
+        """The arbitrator's view of every member at this step (``episode`` as the arbitrator reads it;
+        ``zone_radius``: the target zone's, cm, :attr:`EpisodeLoop.zone_radius`)."""
         state = self.state
 
         def predict_end(action: torch.Tensor) -> torch.Tensor:
-            return agent.predict_arm(state[:, :4], agent.executable(action, state))[:, :2]
+            return agent.predict_arm(state[:, ARM], agent.executable(action, state))[:, END]
 
         # copies (torch.tensor), not views of the carried arrays: a context kept by a rule stays as it was
         return ArbitrationContext(episode=torch.tensor(episode), step=torch.tensor(self.step),
@@ -174,7 +193,7 @@ def estimate_error(info: StepInfo) -> np.ndarray:
     """``[E]`` the integrator's error after the step: mean over hand, elbow and target of the distance
     between the estimate and the truth (MuJoCo's sites) (cm)."""
     truth = np.concatenate([info.true_arm, info.target], axis=1)
-    return np.linalg.norm((info.next_state[:, :6] - truth).reshape(-1, 3, 2), axis=-1).mean(-1)
+    return np.linalg.norm((info.next_state[:, POSITIONS] - truth).reshape(-1, 3, 2), axis=-1).mean(-1)
 
 
 def select_action(agent: Policy, arbitrator: Arbitrator, ctx: ArbitrationContext, active: np.ndarray,
@@ -239,7 +258,10 @@ class EpisodeLoop:
 
     def __init__(self, agent: Policy, arbitrator: Arbitrator, env: VecEnv, zone_radius: float | None = None,
                  hooks: Sequence[Hook] = (), adapt: bool = True, integrator: Integrator | None = None) -> None:
-        self.agent, self.arbitrator, self.env, self.zone_radius = agent, arbitrator, env, zone_radius
+        self.agent, self.arbitrator, self.env = agent, arbitrator, env
+        #: Radius (cm) of the target zone the agent judges its estimate by: ``zone_radius``, default the
+        #: task's (``env.spec.zone_radius``), resolved here once for every step.
+        self.zone_radius = env.spec.zone_radius if zone_radius is None else zone_radius
         self.hooks = _checked(hooks)
         #: The arbitrator's and the integrator's running statistics learn from the steps (training);
         #: False: frozen (tests).
@@ -274,19 +296,18 @@ class EpisodeLoop:
             arbitration_episode: np.ndarray | None = None, override: Override | None = None) -> StepInfo:
         """Arbitrate (the arbitrator reads ``arbitration_episode``, default ``episode``), let ``override``
         replace the action (the trainer's babbling), step the ``active`` members."""
-        radius = self.env.spec.zone_radius if self.zone_radius is None else self.zone_radius
-        ctx = st.context(episode if arbitration_episode is None else arbitration_episode, self.agent, radius)
+        ctx = st.context(episode if arbitration_episode is None else arbitration_episode, self.agent, self.zone_radius)
         action, decision = select_action(self.agent, self.arbitrator, ctx, active, explore)
         habit, inputs = decision.habit, decision_inputs(decision)
         if override is not None:
             action, habit = override(action, habit)
         info = agent_step(self.agent, self.env, self.integrator, st.state, episode, st.step, active, action, habit,
-                          zone_radius=radius)
+                          zone_radius=self.zone_radius)
         info.arbitration = inputs
         return info
 
     def advance(self, st: EpisodeState, info: StepInfo, active: np.ndarray, counted: np.ndarray | None = None,
-                next_state: np.ndarray | None = None) -> None:
+                next_state: torch.Tensor | np.ndarray | None = None) -> None:
         """Carry ``st`` past ``info`` (see :meth:`EpisodeState.advance`), then the step hook."""
         st.advance(info, active, counted, next_state)
         self.arbitrator.observe(info, active if counted is None else counted, self.adapt)
@@ -295,7 +316,7 @@ class EpisodeLoop:
 
     def begin(self, members: np.ndarray) -> EpisodeState:
         """A frozen episode's start for ``members``: a fresh carry, their environments reset (noise untouched)."""
-        st = EpisodeState.fresh(self.env.E, self.agent.device, 6 + self.env.extra.shape[1])
+        st = EpisodeState.fresh(self.env.E, self.agent.device, POSITION_DIM + self.env.extra.shape[1])
         self.start(st, members, reset_noise=False)
         return st
 
@@ -343,25 +364,25 @@ def agent_step(agent: Policy, vec_env: VecEnv, integrator: Integrator, state: to
     """
     device = state.device
     executable = agent.executable(action, state)  # what the plant will do: every network sees this action
-    predicted = agent.predict_arm(state[:, :4], executable)
+    predicted = agent.predict_arm(state[:, ARM], executable)
     obs = vec_env.step(action.detach().cpu().double().numpy(), active)
-    vision = torch.as_tensor(obs.vision, device=device)
-    seen = observed_state(obs, device)
-    active_t = torch.as_tensor(active, device=device)
+    seen, vision, seen_reward, reached, active_t = _observed_step(obs, active, device)
     if vec_env.extra.shape[1]:  # the integrator estimates the positions; the extra observations (proprioception)
         # are read as they are, every step
-        positions = integrator.update(state[:, :6], predicted, seen, vision, active_t)
-        kept = torch.cat([positions, state[:, 6:]], 1)
+        positions = integrator.update(state[:, POSITIONS], predicted, seen, vision, active_t)
+        kept = torch.cat([positions, state[:, EXTRA]], 1)
         next_state = torch.where(active_t[:, None], with_extra(positions, vec_env), kept)
     else:
         next_state = integrator.update(state, predicted, seen, vision, active_t)
     radius = vec_env.spec.zone_radius if zone_radius is None else zone_radius
-    est_distance = torch.linalg.vector_norm(next_state[:, :2] - next_state[:, 4:6], dim=1)
-    reward = torch.where(vision, torch.as_tensor(obs.reward, dtype=torch.float32, device=device), -est_distance)
-    terminal = torch.where(vision, torch.as_tensor(obs.reached, device=device), est_distance <= radius)
+    est_distance = torch.linalg.vector_norm(next_state[:, END] - next_state[:, TARGET], dim=1)
+    reward = torch.where(vision, seen_reward, -est_distance)
+    terminal = torch.where(vision, reached, est_distance <= radius)
     delta = agent.td_error(state, executable, reward, next_state, terminal.float())
-    return _info(vec_env, obs, episode, step, active, state, action, habit, delta, predicted, reward,
+    info = _info(vec_env, obs, episode, step, active, state, action, habit, delta, predicted, reward,
                  next_state, terminal, radius)
+    info.tensors = StepTensors(state, action, reward, next_state, terminal)
+    return info
 
 
 def _info(vec_env: VecEnv, obs: Observation, episode, step, active, state, action, habit, delta, predicted,

@@ -12,11 +12,11 @@ Layout (``docs/architecture.md`` has the columns)::
       .lock                the lock of the one process writing the run (apac_mj.util.lock)
 
 :class:`RunDir` reads and writes these files; :class:`RunCheckpoint` is a
-loaded checkpoint read by name. Beside them: what a run is before it has
-files (:func:`validate`, :func:`check_device`, :func:`config_dict`), the
-run's environments and agent built from its files (:func:`training_env`,
-:func:`load_run`), the config diff, the commit, and the one way to tell the
+loaded checkpoint read by name. Beside them: the config in its JSON form
+(:func:`config_dict`), the config diff, the commit, and the one way to tell the
 user something (:func:`say`, on stderr so that stdout stays machine-readable).
+This module imports neither the plant nor the learner: a run is built from its
+files in :mod:`apac_mj.run.build`.
 
 One process writes a run: :meth:`RunDir.lock` (an advisory file lock the operating system releases
 when its holder dies; a second writer is refused, naming the holder's PID), and the writer removes
@@ -41,19 +41,12 @@ import numpy as np
 import pandas as pd
 
 from apac_mj.config import TrainConfig, migrate, to_dict, train_config_from_dict
-from apac_mj.kinematics import Geometry, Sizes
-from apac_mj.kinds import check as check_kind
 from apac_mj.run import checkpoint
-from apac_mj.suite import spec_for
 from apac_mj.util.files import atomic_write_bytes, atomic_write_text, read_json, remove_stale_temporaries
 from apac_mj.util.lock import locked
-from apac_mj.util.overrides import MAX_SEEDS, SEED_LIMIT
 
-if TYPE_CHECKING:  # torch, the learner and the plant load where a run is built, not where it is read
+if TYPE_CHECKING:  # torch loads where a checkpoint is made or read, not where a run's files are listed
     import torch
-
-    from apac_mj.agent.agent import Agent
-    from apac_mj.suite.vec_env import VecEnv
 
 CONFIG, METRICS, DONE = "config.json", "metrics.parquet", "DONE"
 CHECKPOINTS, EVAL, RECORDINGS = "checkpoints", "eval", "recordings"
@@ -69,8 +62,6 @@ CHECKPOINT_KEYS = ("config", "loop", "agent", "env", "babbling_generators", "met
 NETWORK_KEYS = ("agent", "env")
 #: The running statistics a checkpoint keeps (``EpisodeLoop.state_dict``; absent before they existed).
 RUNNING_KEYS = ("arbitrator", "integrator")
-#: At most this many training episodes per seed.
-MAX_EPISODES = 10**9
 
 
 class RunMismatch(ValueError):
@@ -116,114 +107,6 @@ def diff(old: dict[str, Any], new: dict[str, Any], where: str, prefix: str = "",
         elif a != b:
             out.append(f"{prefix}{k}: {a!r} {where}, {b!r} {now}")
     return out
-
-
-def validate(cfg: TrainConfig) -> None:
-    """Refuse a run configuration that cannot run here (a ValueError naming the field); writes nothing."""
-    if not cfg.seeds:
-        raise ValueError("at least one seed is needed")
-    if len(cfg.seeds) > MAX_SEEDS:
-        raise ValueError(f"{len(cfg.seeds)} seeds: at most {MAX_SEEDS} fit in one run (each is an ensemble member "
-                         "with its own networks); split them over several runs")
-    if (any(isinstance(s, bool) or not isinstance(s, (int, np.integer)) or not 0 <= s < SEED_LIMIT for s in cfg.seeds)
-            or len(set(cfg.seeds)) != len(cfg.seeds)):
-        raise ValueError(f"seeds must be distinct integers in [0, 2^32), got {_short(list(cfg.seeds))}")
-    for name, value, limit in (("episodes", cfg.episodes, MAX_EPISODES), ("checkpoint_every", cfg.checkpoint_every,
-                                                                         MAX_EPISODES)):
-        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 1 <= value <= limit:
-            raise ValueError(f"{name} must be an integer in [1, {limit}], got {value!r}")
-    if cfg.agent.babbling_episodes < 0:
-        raise ValueError(f"babbling_episodes must be >= 0, got {cfg.agent.babbling_episodes}")
-    if cfg.device not in ("cpu", "cuda") and not cfg.device.startswith("cuda:"):
-        raise ValueError(f"device must be 'cpu' or 'cuda', got {cfg.device!r}")
-    check_device(cfg.device)
-    if cfg.precision not in ("fp32", "bf16", "auto"):  # auto: resolved by the trainer before prepare()
-        raise ValueError(f"precision must be 'fp32', 'bf16' or 'auto', got {cfg.precision!r}")
-    if cfg.actuation not in ("servo", "kinematic"):
-        raise ValueError(f"actuation must be 'servo' or 'kinematic', got {cfg.actuation!r}")
-    check_kind(cfg.agent)  # an unknown kind: an error listing the registered ones
-    spec = spec_for(cfg)  # unknown task -> KeyError listing the known ones; bad override -> TaskSpecError
-    if spec.plant.dynamic and cfg.actuation != "servo":
-        raise ValueError(f"task {cfg.task!r} has a {spec.plant.actuation} plant ([plant]); actuation "
-                         f"{cfg.actuation!r} would write the joint angles and skip its dynamics: use 'servo'")
-    _check_memory(cfg)
-
-
-def _short(values: list[Any], n: int = 10) -> str:
-    """A list for a message, at most ``n`` entries shown."""
-    return str(values) if len(values) <= n else f"[{', '.join(map(str, values[:n]))}, ... ({len(values)} in all)]"
-
-
-def _check_memory(cfg: TrainConfig) -> None:
-    """The replay buffers (the largest part of a run that its settings size) fit in this machine's memory."""
-    import os
-
-    floats_per_transition = 4 + 2 + 1 + 4 + 1 + 2 + 4  # s, a, r, s', done, executed a, spare (Agent's replay)
-    need = cfg.agent.replay_size * len(cfg.seeds) * floats_per_transition * 4
-    try:
-        have = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (ValueError, OSError):
-        return
-    if need > have:
-        raise ValueError(f"agent.replay_size = {cfg.agent.replay_size} for {len(cfg.seeds)} seeds needs about "
-                         f"{need / 2**30:.3g} GiB of replay buffers; this machine has {have / 2**30:.3g} GiB")
-
-
-def check_device(device: str) -> None:
-    """A CUDA device that this machine (or this torch build) lacks is an error naming the way out."""
-    if not device.startswith("cuda"):
-        return
-    import torch
-
-    if not torch.cuda.is_available():
-        build = "a CPU-only build" if torch.version.cuda is None else f"built for CUDA {torch.version.cuda}"
-        raise ValueError(f"device {device!r}: CUDA is not available here (torch {torch.__version__}, {build}); "
-                         "use --device cpu, or set up with APAC_MJ_TORCH=cuda on a machine with a GPU (README)")
-    index = int(device.split(":")[1]) if ":" in device else 0
-    if index >= torch.cuda.device_count():
-        raise ValueError(f"device {device!r}: this machine has {torch.cuda.device_count()} CUDA device(s)")
-
-
-def training_env(cfg: TrainConfig) -> VecEnv:
-    """The run's environments as training builds them: changing kinematics start after
-    ``growth_start_episode`` *training* episodes, so the environment's threshold (which counts every
-    reset) is shifted by the babbling count here, and only here; so is the plant's schedule (load change,
-    force field on and off)."""
-    from apac_mj.suite.vec_env import VecEnv  # the plant loads when a run is built, not when one is read
-
-    spec, babbling = spec_for(cfg), cfg.agent.babbling_episodes
-    overrides = {**cfg.task_overrides, "growth_start_episode": spec.growth_start_episode + babbling}
-    if spec.plant.dynamic:  # the plant's schedule (load change, field on/off) counts training episodes too
-        overrides["plant"] = spec.plant.shifted(babbling)
-    return VecEnv(cfg.task, list(cfg.seeds), cfg.actuation, overrides=overrides)
-
-
-def task_sizes(cfg: TrainConfig) -> Sizes:
-    """The agent's sizes (state and action dimensions, action bound) from the dm_env specs of the run's task
-    (one environment is built to read them)."""
-    from apac_mj import suite  # the plant loads when a run is built, not when one is read
-
-    env = suite.load("planar_arm", cfg.task, task_kwargs={"random": 0, "actuation": cfg.actuation,
-                                                          **cfg.task_overrides})
-    return Sizes.from_specs(env.observation_spec(), env.action_spec())
-
-
-def load_run(run_dir: str | Path, device: str | None = None,
-             precision: str | None = None) -> tuple[TrainConfig, Agent, RunCheckpoint]:
-    """The run's config, its agent (on ``device``, in ``precision``: default the run's) with the newest
-    intact checkpoint's weights, and that checkpoint."""
-    from apac_mj.agent.agent import Agent  # the learner loads when a run is built, not when one is read
-
-    run = RunDir(run_dir)
-    cfg = run.train_config()
-    device = cfg.device if device is None else device
-    check_device(device)  # a missing GPU: a clear error before anything is loaded
-    ckpt = run.load_checkpoint(required=NETWORK_KEYS)
-    run.check_config(ckpt)  # config.json says what the checkpoint trained (an edited one: an error naming it)
-    agent = Agent(cfg.agent, list(cfg.seeds), device=device, precision=precision or cfg.precision,
-                  geometry=Geometry.from_spec(spec_for(cfg)), sizes=task_sizes(cfg))
-    agent.load_state_dict(ckpt.agent)
-    return cfg, agent, ckpt
 
 
 @dataclasses.dataclass(frozen=True)
@@ -379,12 +262,12 @@ class RunDir:
         return self.config().get("episodes") if self.exists() else None
 
     def prepare(self, cfg: TrainConfig) -> tuple[dict[str, Any], int | None]:
-        """Validate ``cfg`` against itself and the run already here; write nothing.
+        """Check ``cfg`` (already valid in itself: :func:`apac_mj.run.build.check`) against the run already here;
+        write nothing.
 
         Returns the config and the episode count of the run already here (None: a new run). The same
         config with more episodes extends a run; any other difference is refused.
         """
-        validate(cfg)
         config = config_dict(cfg)
         if not self.exists():
             return config, None

@@ -53,20 +53,18 @@ import torch
 from tqdm.auto import tqdm
 
 from apac_mj.agent import precision as precisions
-from apac_mj.agent.agent import Agent
-from apac_mj.config import AgentConfig, TrainConfig
-from apac_mj.kinds import arbitrator_for
-from apac_mj.kinematics import Geometry
-from apac_mj.run.rollout import EpisodeLoop, EpisodeState, Hook, OnEpisodeStart, OnStep, as_hooks
+from apac_mj.config import PRECISIONS, AgentConfig, TrainConfig
+from apac_mj.run.build import Run, build, check
 from apac_mj.run.checkpoint import CheckpointError
-from apac_mj.run.run_dir import RunCheckpoint, RunDir, RunMismatch, diff, say, task_sizes, training_env, validate
-from apac_mj.suite import spec_for
-from apac_mj.types import StepInfo
+from apac_mj.run.rollout import EpisodeLoop, EpisodeState, Hook, OnEpisodeStart, OnStep, as_hooks
+from apac_mj.run.run_dir import RunCheckpoint, RunDir, RunMismatch, config_dict, diff, say
+from apac_mj.suite.task_spec import TaskSpec
+from apac_mj.types import ARM, END, LOSSES, TARGET, StepInfo
 
 #: Episodes (all seeds) in the progress bar's running success rate and habit share.
 PROGRESS_WINDOW = 20
 #: The agent's losses (``Agent.update``) in the order of the ``*_loss`` metric columns.
-LOSS_NAMES = ("critic", "actor", "forward", "inverse")
+LOSS_NAMES = LOSSES
 
 
 # -- seeding: the only place random streams are derived ---------------------------------------
@@ -124,52 +122,154 @@ def train(cfg: TrainConfig, out_dir: str | Path, progress: bool = True, on_step:
     files. Resuming, extending a finished run (same config, more episodes) and finding a run already
     finished are said on stderr, as is a fallback to an older checkpoint.
     """
-    run = RunDir(out_dir)
-    validate(cfg)  # before the directory (and its lock) exist
-    with run.lock():  # one writer per run: another process writing it is refused, naming its PID
-        return _train(cfg, run, progress, hooks, on_step, on_episode_start)
+    run_dir = RunDir(out_dir)
+    spec = check(cfg)  # before the directory (and its lock) exist; the one read of the task file
+    with run_dir.lock():  # one writer per run: another process writing it is refused, naming its PID
+        return Trainer(cfg, spec, run_dir, as_hooks(hooks, on_step, on_episode_start), progress).train()
 
 
-def _train(cfg: TrainConfig, run: RunDir, progress: bool, hooks: Sequence[Hook], on_step: OnStep | None,
-           on_episode_start: OnEpisodeStart | None) -> Path:
-    """:func:`train` as the run's one writer."""
-    cfg = resolved_precision(cfg, run)
-    config, run_episodes = run.prepare(cfg)
-    if run_episodes == cfg.episodes and run.check_finished():
-        say(f"{run.path} already finished {cfg.episodes} episodes; nothing to train "
-            f"(a larger --episodes extends it)")
-        return run.path
-    seeds = list(cfg.seeds)
-    env = training_env(cfg)
-    agent = Agent(cfg.agent, seeds, device=cfg.device, precision=cfg.precision,
-                  geometry=Geometry.from_spec(spec_for(cfg)), sizes=task_sizes(cfg))
-    babble_gens = babbling_generators(seeds)
-    episodes = EpisodeLoop(agent, arbitrator_for(cfg.agent), env, hooks=as_hooks(hooks, on_step, on_episode_start))
-    loop, rows, saved_at = LoopState.fresh(len(seeds), cfg.agent.babbling_episodes, agent.device,
-                                           agent.state_dim), [], None
-    if run.checkpoint_files():
-        loop, rows = _restore(run, config, episodes, babble_gens)
-        saved_at = loop.slowest()
-        _say_resume(run.path, loop, run_episodes, cfg.episodes)
-    run.write_config(config, run_episodes)
-    bar, window = _progress_bar(cfg, loop, rows, progress)
-    saved = _Saved(saved_at)
-    try:
-        _loop(cfg, run, config, loop, rows, saved, episodes, babble_gens, bar, window)
-        if saved.at != loop.slowest():  # not saved just now by the periodic checkpoint
-            _save(run, config, loop, episodes, babble_gens, rows)
-        run.mark_finished()
-    except KeyboardInterrupt:
-        bar.close()
-        _say_interrupted(run.path, saved.at, cfg)
-        raise
-    except Exception:
-        if run_episodes is None and saved.at is None:  # a new run that failed before its first checkpoint:
-            run.discard_unstarted()                     # no config.json left to refuse the corrected command
-        raise
-    finally:
-        bar.close()
-    return run.path
+class Trainer:
+    """One call of :func:`train` as the run's one writer (TD-MPC2's ``OnlineTrainer``): the run's parts, built
+    once (:func:`apac_mj.run.build.build`), and what the loop carries between its steps."""
+
+    def __init__(self, cfg: TrainConfig, spec: TaskSpec, run_dir: RunDir, hooks: Sequence[Hook] = (),
+                 progress: bool = True) -> None:
+        #: The config with ``precision = "auto"`` resolved.
+        self.cfg = resolved_precision(cfg, run_dir)
+        self.spec, self.run_dir, self.hooks, self.progress = spec, run_dir, list(hooks), progress
+        #: The config as config.json and every checkpoint hold it.
+        self.config: dict[str, Any] = config_dict(self.cfg)
+        #: The environments, agent and episode loop (built when training starts).
+        self.run: Run | None = None
+        #: The per-member carry and counters (:class:`LoopState`).
+        self.state: LoopState | None = None
+        #: One metric row per finished episode (metrics.parquet).
+        self.rows: list[dict[str, Any]] = []
+        #: One generator per member for the babbling actions.
+        self.babbling_generators: list[torch.Generator] = []
+        #: Training episodes (of the slowest member) in this call's newest checkpoint; None: none yet.
+        self.saved_at: int | None = None
+        self.bar: tqdm | None = None
+        #: The last episodes' (success, habit, planning) of all seeds, for the bar.
+        self.window: collections.deque = collections.deque()
+
+    def train(self) -> Path:
+        """Build the run, restore its checkpoint if it has one, train until every member finished."""
+        cfg, run_dir = self.cfg, self.run_dir
+        config, run_episodes = run_dir.prepare(cfg)
+        if run_episodes == cfg.episodes and run_dir.check_finished():
+            say(f"{run_dir.path} already finished {cfg.episodes} episodes; nothing to train "
+                f"(a larger --episodes extends it)")
+            return run_dir.path
+        self.run = build(cfg, self.spec, self.hooks)
+        self.babbling_generators = babbling_generators(list(cfg.seeds))
+        self.state = LoopState.fresh(len(cfg.seeds), cfg.agent.babbling_episodes, self.run.agent.device,
+                                     self.run.agent.state_dim)
+        if run_dir.checkpoint_files():
+            self._restore()
+            self.saved_at = self.state.slowest()
+            _say_resume(run_dir.path, self.state, run_episodes, cfg.episodes)
+        run_dir.write_config(config, run_episodes)
+        self.bar, self.window = _progress_bar(cfg, self.state, self.rows, self.progress)
+        try:
+            self._loop()
+            if self.saved_at != self.state.slowest():  # not saved just now by the periodic checkpoint
+                self._save()
+            run_dir.mark_finished()
+        except KeyboardInterrupt:
+            self.bar.close()
+            _say_interrupted(run_dir.path, self.saved_at, cfg)
+            raise
+        except Exception:
+            if run_episodes is None and self.saved_at is None:  # a new run that failed before its first checkpoint:
+                run_dir.discard_unstarted()                     # no config.json left to refuse the corrected command
+            raise
+        finally:
+            self.bar.close()
+        return run_dir.path
+
+    def _loop(self) -> None:
+        """Episodes until every member finished ``cfg.episodes``, with the periodic checkpoints."""
+        cfg, st = self.cfg, self.state
+        while (active := st.episode < cfg.episodes).any():
+            _start_episodes(st, active, self.run.loop)
+            info = self._step(active)
+            for row in _finish_episodes(st, info, list(cfg.seeds)):
+                self.rows.append(row)
+                if row["phase"] == "train":
+                    self.window.append((row["success"], row["habit_actions"], row["planning_actions"]))
+            _progress(self.bar, st, cfg.episodes, self.window)
+            _say_babbling(self.bar, st, cfg.agent.babbling_episodes)
+            if st.slowest() // cfg.checkpoint_every > st.checkpoints_done:
+                st.checkpoints_done = st.slowest() // cfg.checkpoint_every
+                self._save()
+                self.saved_at = st.slowest()
+
+    def _step(self, active: np.ndarray) -> StepInfo:
+        """Act (arbitrated, or random while babbling), step, store, update once; advance the loop state."""
+        st, agent, episodes = self.state, self.run.agent, self.run.loop
+        babbling = active & (st.episode < 0)
+        override = (lambda a, h: _babbling_action(agent.cfg, a, h, babbling, self.babbling_generators)) \
+            if babbling.any() else None
+        angles_before = self.run.env.joint_angles()
+        info = episodes.act(st, active, st.episode, explore=True, override=override)
+        s, s2, r, done = _transition(info, babbling)
+        dev = agent.device
+        if agent.sizes.angle_actions:
+            executed = torch.as_tensor(info.joint_angles - angles_before, dtype=torch.float32, device=dev)
+        else:  # torques: the plant applies the command as it is (select_action bounds it)
+            executed = info.tensors.action
+        learned = executed if self.cfg.agent.critic_action == "executed" else info.tensors.action
+        agent.replay.add(s, learned, r, s2, done, torch.as_tensor(active), executed_action=executed)
+        for _ in range(self.cfg.agent.updates_per_step):
+            self._update(active)
+        episodes.advance(st, info, active, counted=active & ~babbling, next_state=s2)
+        return info
+
+    def _update(self, active: np.ndarray) -> None:
+        """One update of the agent; this episode's loss sums of the members it updated."""
+        losses = self.run.agent.update(torch.as_tensor(active))
+        values = torch.stack([losses[n] for n in LOSS_NAMES], dim=1).float().cpu().numpy()  # one transfer
+        updated = np.isfinite(values).all(axis=1)
+        self.state.loss_sum[updated] += values[updated]
+        self.state.loss_n += updated
+
+    # -- checkpoints: save and restore -----------------------------------------------------------
+    def _save(self) -> None:
+        """metrics.parquet, then the checkpoint (the one before it kept) with the rows' digest and a copy of them."""
+        episodes, rows = self.run.loop, self.rows
+        table = self.run_dir.write_metrics(rows)
+        self.run_dir.save_checkpoint(RunCheckpoint.with_metrics(RunCheckpoint.layout(
+            self.config, self.state.state_dict(), episodes.agent.state_dict(), episodes.env.get_state(),
+            episodes.state_dict(), [g.get_state() for g in self.babbling_generators], len(rows)), rows, table))
+
+    def _restore(self) -> None:
+        """Load the newest intact checkpoint (warning when it is not latest.pt) into the agent, the environments,
+        the generators and the loop state; the metric rows with it."""
+        ckpt = self.run_dir.load_checkpoint(check=self._check_and_apply)
+        self.rows = self.run_dir.read_metric_rows(ckpt)
+
+    def _check_and_apply(self, ckpt: RunCheckpoint) -> None:
+        """Put a loaded checkpoint into the run (a CheckpointError: try an older one). config.json must agree
+        with it (an edited one: :class:`RunMismatch`), and so must the settings asked for (same config but the
+        episode count, which an extended run changes)."""
+        self.run_dir.check_config(ckpt)
+        changed = diff({**ckpt.config, "episodes": None}, {**self.config, "episodes": None}, "in the checkpoint")
+        if changed:  # the run's files agree with it (RunDir.check_config): the settings asked for differ
+            raise RunMismatch(f"checkpoint {ckpt.path} was trained with other settings than those asked for "
+                              f"({'; '.join(changed)}): run with the run's settings, or use another --out")
+        agent, env = self.run.agent, self.run.env
+        try:
+            agent.load_state_dict(_to_device(ckpt.agent, agent.device))
+            env.set_state(ckpt.env)
+            for g, s in zip(self.babbling_generators, ckpt.babbling_generators, strict=True):
+                g.set_state(s)
+            self.state = LoopState.from_state_dict(ckpt.loop, agent.device)
+            self.run.loop.load_state_dict(ckpt.running_statistics())
+        except (KeyError, ValueError, RuntimeError, TypeError, AttributeError) as e:
+            raise CheckpointError(f"checkpoint {ckpt.path} is corrupt or incompatible: "
+                                  f"{type(e).__name__}: {e}") from None
+        torch.set_rng_state(ckpt.torch_rng)
 
 
 def resolved_precision(cfg: TrainConfig, run: RunDir) -> TrainConfig:
@@ -180,19 +280,12 @@ def resolved_precision(cfg: TrainConfig, run: RunDir) -> TrainConfig:
         return cfg
     if run.exists():
         stored = run.config().get("precision")
-        if stored in ("fp32", "bf16"):
+        if stored in PRECISIONS:
             say(f"precision {stored}: auto keeps the precision {run.path} was started with (config.json)")
             return dataclasses.replace(cfg, precision=stored)
     choice = precisions.resolve("auto", cfg.device)
     say(f"precision {choice.precision}: {choice.reason}")
     return dataclasses.replace(cfg, precision=choice.precision)
-
-
-@dataclasses.dataclass
-class _Saved:
-    """Training episodes (of the slowest member) in the newest checkpoint of this call; None: none yet."""
-
-    at: int | None
 
 
 def _progress_bar(cfg: TrainConfig, loop: LoopState, rows: list[dict[str, Any]],
@@ -216,25 +309,6 @@ def _say_babbling(bar: tqdm, loop: LoopState, babbling: int) -> None:
         bar.set_postfix_str(label)
     elif str(bar.postfix or "").startswith("motor babbling"):
         bar.set_postfix_str("")
-
-
-def _loop(cfg: TrainConfig, run: RunDir, config: dict[str, Any], loop: LoopState, rows: list[dict[str, Any]],
-          saved: _Saved, episodes: EpisodeLoop, babble_gens: list[torch.Generator], bar: tqdm,
-          window: collections.deque) -> None:
-    """Episodes until every member finished ``cfg.episodes``, with the periodic checkpoints (``saved``)."""
-    while (active := loop.episode < cfg.episodes).any():
-        _start_episodes(loop, active, episodes)
-        info = _step(cfg, loop, active, episodes, babble_gens)
-        for row in _finish_episodes(loop, info, list(cfg.seeds)):
-            rows.append(row)
-            if row["phase"] == "train":
-                window.append((row["success"], row["habit_actions"], row["planning_actions"]))
-        _progress(bar, loop, cfg.episodes, window)
-        _say_babbling(bar, loop, cfg.agent.babbling_episodes)
-        if loop.slowest() // cfg.checkpoint_every > loop.checkpoints_done:
-            loop.checkpoints_done = loop.slowest() // cfg.checkpoint_every
-            _save(run, config, loop, episodes, babble_gens, rows)
-            saved.at = loop.slowest()
 
 
 def _say_resume(out_dir: Path, loop: LoopState, run_episodes: int | None, episodes: int) -> None:
@@ -264,34 +338,6 @@ def _start_episodes(loop: LoopState, active: np.ndarray, episodes: EpisodeLoop) 
     loop.loss_sum[starting], loop.loss_n[starting] = 0.0, 0
 
 
-def _step(cfg: TrainConfig, loop: LoopState, active: np.ndarray, episodes: EpisodeLoop,
-          babble_gens: list[torch.Generator]) -> StepInfo:
-    """Act (arbitrated, or random while babbling), step, store, update once; advance the loop state."""
-    agent, env = episodes.agent, episodes.env
-    babbling = active & (loop.episode < 0)
-    override = (lambda a, h: _babbling_action(agent.cfg, a, h, babbling, babble_gens)) if babbling.any() else None
-    angles_before = env.joint_angles()
-    info = episodes.act(loop, active, loop.episode, explore=True, override=override)
-    s, s2, r, done = _transition(info, babbling)
-    dev = agent.device
-    if agent.sizes.angle_actions:
-        executed = torch.as_tensor(info.joint_angles - angles_before, dtype=torch.float32, device=dev)
-    else:  # torques: the plant applies the command as it is (select_action bounds it)
-        executed = torch.as_tensor(info.action, dtype=torch.float32, device=dev)
-    learned = executed if cfg.agent.critic_action == "executed" else torch.as_tensor(info.action, device=dev)
-    agent.replay.add(torch.as_tensor(s, device=dev), learned, torch.as_tensor(r, device=dev),
-                     torch.as_tensor(s2, device=dev), torch.as_tensor(done, device=dev), torch.as_tensor(active),
-                     executed_action=executed)
-    for _ in range(cfg.agent.updates_per_step):
-        losses = agent.update(torch.as_tensor(active))
-        values = torch.stack([losses[n] for n in LOSS_NAMES], dim=1).float().cpu().numpy()  # one transfer
-        updated = np.isfinite(values).all(axis=1)
-        loop.loss_sum[updated] += values[updated]
-        loop.loss_n += updated
-    episodes.advance(loop, info, active, counted=active & ~babbling, next_state=s2)
-    return info
-
-
 def _babbling_action(cfg: AgentConfig, action: torch.Tensor, habit: torch.Tensor, babbling: np.ndarray,
                      gens: list[torch.Generator]) -> tuple[torch.Tensor, torch.Tensor]:
     """Uniform actions in ``±cfg.babbling_scale`` (the agent's config: in the task's action units)."""
@@ -304,18 +350,19 @@ def _babbling_action(cfg: AgentConfig, action: torch.Tensor, habit: torch.Tensor
     return action, habit & ~torch.as_tensor(babbling, device=habit.device)
 
 
-def _transition(info: StepInfo, babbling: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """``(s, s2, r, terminal)`` to store; babbling: target := reached end position, r = 0, terminal.
+def _transition(info: StepInfo, babbling: np.ndarray) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``(s, s2, r, terminal)`` to store, on the agent's device; babbling: target := reached end position, r = 0,
+    terminal.
 
     Babbling sees the arm, so its next state is MuJoCo's arm even under occluded vision.
     """
-    s, s2 = info.state.copy(), info.next_state.copy()
-    r, done = info.reward.copy(), info.terminal.astype(np.float32)
-    b = babbling
-    if b.any():
-        reached_end = info.true_arm[b, :2]
-        s[b, 4:6], s2[b, :4], s2[b, 4:6] = reached_end, info.true_arm[b], reached_end
-        r[b], done[b] = 0.0, 1.0
+    t = info.tensors
+    s, s2, r, done = t.state.clone(), t.next_state.clone(), t.reward.clone(), t.terminal.float()
+    if babbling.any():
+        rows = torch.as_tensor(np.flatnonzero(babbling), device=s.device)
+        arm = torch.as_tensor(info.true_arm[babbling], dtype=s.dtype, device=s.device)  # MuJoCo's, one transfer
+        s[rows, TARGET], s2[rows, ARM], s2[rows, TARGET] = arm[:, END], arm, arm[:, END]
+        r[rows], done[rows] = 0.0, 1.0
     return s, s2, r, done
 
 
@@ -346,53 +393,6 @@ def _progress(bar: tqdm, loop: LoopState, episodes: int, window: collections.deq
             success = np.mean([w[0] for w in window])
             habit, plan = sum(w[1] for w in window), sum(w[2] for w in window)
             bar.set_postfix(success=f"{success:.2f}", habit=f"{habit / max(1, habit + plan):.2f}")
-
-
-# -- checkpoints: save and restore ---------------------------------------------------------------
-def _save(run: RunDir, config: dict[str, Any], loop: LoopState, episodes: EpisodeLoop,
-          babble_gens: list[torch.Generator], rows: list[dict[str, Any]]) -> None:
-    """metrics.parquet, then the checkpoint (the one before it kept) with the rows' digest and a copy of them."""
-    table = run.write_metrics(rows)
-    run.save_checkpoint(RunCheckpoint.with_metrics(RunCheckpoint.layout(
-        config, loop.state_dict(), episodes.agent.state_dict(), episodes.env.get_state(), episodes.state_dict(),
-        [g.get_state() for g in babble_gens], len(rows)), rows, table))
-
-
-def _restore(run: RunDir, config: dict[str, Any], episodes: EpisodeLoop,
-             babble_gens: list[torch.Generator]) -> tuple[LoopState, list[dict[str, Any]]]:
-    """Load the newest intact checkpoint (warning when it is not latest.pt) into the agent and env."""
-    restored: dict[str, Any] = {}
-
-    def check(ckpt: RunCheckpoint) -> None:
-        run.check_config(ckpt)  # an edited config.json: said as such (the checkpoint records what was trained)
-        restored["loop"] = _apply(ckpt, config, episodes, babble_gens)
-        restored["rows"] = run.read_metric_rows(ckpt)
-
-    run.load_checkpoint(check=check)
-    return restored["loop"], restored["rows"]
-
-
-def _apply(ckpt: RunCheckpoint, config: dict[str, Any], episodes: EpisodeLoop,
-           babble_gens: list[torch.Generator]) -> LoopState:
-    """Put a loaded checkpoint into the agent, the environments and the generators (same config but
-    the episode count, which an extended run changes)."""
-    agent, env = episodes.agent, episodes.env
-    changed = diff({**ckpt.config, "episodes": None}, {**config, "episodes": None}, "in the checkpoint")
-    if changed:  # the run's files agree with it (RunDir.check_config): the settings asked for differ
-        raise RunMismatch(f"checkpoint {ckpt.path} was trained with other settings than those asked for "
-                          f"({'; '.join(changed)}): run with the run's settings, or use another --out")
-    try:
-        agent.load_state_dict(_to_device(ckpt.agent, agent.device))
-        env.set_state(ckpt.env)
-        for g, s in zip(babble_gens, ckpt.babbling_generators, strict=True):
-            g.set_state(s)
-        loop = LoopState.from_state_dict(ckpt.loop, agent.device)
-        episodes.load_state_dict(ckpt.running_statistics())
-    except (KeyError, ValueError, RuntimeError, TypeError, AttributeError) as e:
-        raise CheckpointError(f"checkpoint {ckpt.path} is corrupt or incompatible: "
-                              f"{type(e).__name__}: {e}") from None
-    torch.set_rng_state(ckpt.torch_rng)
-    return loop
 
 
 def _to_device(obj: Any, device: torch.device) -> Any:

@@ -16,9 +16,12 @@ from dm_control.rl import control
 from dm_control.suite import base
 from dm_env import specs
 
+from apac_mj.config import ACTUATIONS  # noqa: F401 (re-exported: declared once, in config)
 from apac_mj.util import paths
 from apac_mj.kinematics import motion_function
-from apac_mj.suite.task_spec import START_ANGLES, PlantSpec, TaskSpec, STANDARD_GRAVITY
+from apac_mj.suite.plant import (_SITE, FORCE_UNIT, INERTIA_UNIT, LENGTH_UNIT, TORQUE_UNIT,  # noqa: F401 (re-exported)
+                                  Plant, PlantSpec, check_field, curl_force)
+from apac_mj.suite.task_spec import START_ANGLES, TaskSpec
 
 #: Physics sub-steps per environment step under servo actuation. With the
 #: servo gains in the MJCF (kp = 1e4, kv = 200, rotor armature 1, 10 ms
@@ -33,18 +36,6 @@ KINEMATIC_SUB_STEPS = 1
 JOINT_RANGE = (0.0, 180.0)
 #: Bound of each action component (change of a joint angle), degrees.
 ACTION_BOUND = 180.0
-ACTUATIONS = ("servo", "kinematic")
-
-# MuJoCo's units for this model are cm, kg and s: these convert the plant's SI values (PlantSpec).
-_SITE = mujoco.mjtObj.mjOBJ_SITE
-#: N·m -> kg·cm^2/s^2 (torque, and stiffness per rad, damping per rad/s).
-TORQUE_UNIT = 1e4
-#: N -> kg·cm/s^2.
-FORCE_UNIT = 100.0
-#: kg·m^2 -> kg·cm^2.
-INERTIA_UNIT = 1e4
-#: m -> cm.
-LENGTH_UNIT = 100.0
 
 
 class _Ids:
@@ -84,28 +75,40 @@ class Physics(engine.Physics):
 
     The queries read MuJoCo's raw ``MjModel``/``MjData`` arrays through element
     indices resolved once per (re)load (:class:`_Ids`): dm_control's named
-    indexing costs more than the physics itself at this model's size.
+    indexing costs more than the physics itself at this model's size. A task
+    with a ``[plant]`` table gives it a :class:`~apac_mj.suite.plant.Plant`
+    (:meth:`set_plant`), which holds the dynamics.
     """
 
     # Plane bounds and the joints' range (degrees), set by the task that owns this physics.
     plane_size: tuple[float, float] = (30.0, 30.0)
     joint_range: tuple[float, float] = JOINT_RANGE
-    #: The arm's dynamics (:meth:`set_plant`); None: the paper's ideal arm as the MJCF has it.
-    plant: PlantSpec | None = None
-    #: Point load in the hand (kg) and the curl field's b (N·s/m) now (dynamic plants only).
-    load: float = 0.0
-    field_b: float = 0.0
+    #: The arm's dynamics (:meth:`set_plant`: masses, gravity, hand load, force field; :mod:`apac_mj.suite.plant`);
+    #: None: the paper's ideal arm as the MJCF has it.
+    dynamics: Plant | None = None
 
     def _reload_from_data(self, data) -> None:
         # Set before the base class runs after_reset(), and again on every copy/reload.
         self._m, self._d = data.model.ptr, data.ptr
         self.ids = _Ids(self._m)
-        # views the force field reads and writes every sub-step
-        self._vel6 = np.zeros(6)
-        self._hand_x = self._d.site_xpos[self.ids.end_site]
-        self._fore_com = self._d.xipos[self.ids.fore_body]
-        self._fore_xfrc = self._d.xfrc_applied[self.ids.fore_body]
+        if self.dynamics is not None:
+            self.dynamics.bind(self._m, self._d, self.ids)
         super()._reload_from_data(data)
+
+    @property
+    def plant(self) -> PlantSpec | None:
+        """The arm's dynamics as data (the task's ``[plant]`` table); None: the paper's ideal arm."""
+        return None if self.dynamics is None else self.dynamics.spec
+
+    @property
+    def load(self) -> float:
+        """The point load in the hand now (kg; 0 for the ideal arm)."""
+        return 0.0 if self.dynamics is None else self.dynamics.load
+
+    @property
+    def field_b(self) -> float:
+        """The curl field's b now (N·s/m; 0: off, and always for the ideal arm)."""
+        return 0.0 if self.dynamics is None else self.dynamics.field_b
 
     def end_effector(self) -> np.ndarray:
         return self._d.site_xpos[self.ids.end_site, :2].copy()
@@ -195,102 +198,45 @@ class Physics(engine.Physics):
             m.geom_size[geom, 1] = length / 2.0
             m.geom_rbound[geom] = length / 2.0 + radius
             m.geom_aabb[geom, 5] = length / 2.0 + radius
-        if self.plant is not None:
-            self._apply_masses()
+        if self.dynamics is not None:
+            self.dynamics.apply_masses()
         self.forward()
 
-    # -- dynamics (PlantSpec): none of this runs for the paper's ideal arm -----------------------------------
+    # -- dynamics (apac_mj.suite.plant.Plant): none of this runs for the paper's ideal arm ------------------------
     def set_plant(self, plant: PlantSpec) -> None:
-        """Give the arm ``plant``'s dynamics (compliant or torque actuation, masses, damping, gravity).
-
-        Edits the compiled model in place: integration time step, rotor armature 0, the actuators' gain and
-        bias (compliant: kp = stiffness, kv = damping; torque: ctrl is the joint torque in N·m), passive joint
-        damping, gravity along -y, link masses and inertias (:meth:`_apply_masses`), MuJoCo's energy
-        computation on. The ideal plant needs none of it (the MJCF is that plant).
-        """
-        if not plant.dynamic:
-            raise ValueError("set_plant needs a plant with dynamics ('compliant' or 'torque'); the MJCF is the "
-                             "ideal one")
-        m, ids = self._m, self.ids
-        self.plant, self.load, self.field_b = plant, plant.load, 0.0
-        m.opt.timestep = plant.timestep
-        m.opt.gravity[:] = (0.0, -STANDARD_GRAVITY * LENGTH_UNIT if plant.gravity else 0.0, 0.0)
-        m.opt.enableflags |= int(mujoco.mjtEnableBit.mjENBL_ENERGY)
-        m.dof_armature[ids.qvel] = 0.0
-        m.dof_damping[ids.qvel] = np.asarray(plant.joint_damping) * TORQUE_UNIT
-        for k, a in enumerate(ids.ctrl):
-            m.actuator_gainprm[a, :3] = 0.0
-            m.actuator_biasprm[a, :3] = 0.0
-            if plant.actuation == "compliant":
-                kp, kv = plant.stiffness[k] * TORQUE_UNIT, plant.damping[k] * TORQUE_UNIT
-                m.actuator_gainprm[a, 0] = kp
-                m.actuator_biasprm[a, 1:3] = (-kp, -kv)
-            else:  # torque: ctrl in N·m
-                m.actuator_gainprm[a, 0] = TORQUE_UNIT
-        # The capsules follow their geom frame, not the centre of mass a hand load moves.
-        m.geom_sameframe[[ids.upper_geom, ids.fore_geom]] = 0
-        self._apply_masses()
-        mujoco.mj_setConst(m, self._d)
-        self.set_field(0.0)
+        """Give the arm ``plant``'s dynamics (compliant or torque actuation, masses, damping, gravity): a
+        :class:`~apac_mj.suite.plant.Plant` that edits the compiled model in place (:meth:`Plant.apply`) and
+        acts every step. The ideal plant needs none of it (the MJCF is that plant)."""
+        self.dynamics = Plant(plant, self._m, self._d, self.ids)
+        self.dynamics.apply()
 
     def set_load(self, kg: float) -> None:
         """Hold a point load of ``kg`` in the hand (dynamic plants); call between episodes."""
-        if self.plant is None:
+        if self.dynamics is None:
             raise ValueError("a hand load needs a plant with dynamics (set_plant)")
-        if not math.isfinite(kg) or kg < 0:
-            raise ValueError(f"hand load must be a finite number >= 0 (kg), got {kg!r}")
-        if kg != self.load:
-            self.load = float(kg)
-            self._apply_masses()
-            mujoco.mj_setConst(self._m, self._d)
+        self.dynamics.set_load(kg)
 
     def set_field(self, b: float) -> None:
         """Curl field F = B v, B = [[0, b], [-b, 0]] (N·s/m) at the hand from the next sub-step; 0: off."""
-        if not math.isfinite(b):
-            raise ValueError(f"field strength b must be finite (N·s/m), got {b!r}")
-        if b != 0.0 and self.plant is None:
+        if self.dynamics is not None:
+            self.dynamics.set_field(b)
+            return
+        check_field(b)
+        if b != 0.0:
             raise ValueError("a force field needs a plant with dynamics (set_plant)")
-        self.field_b = float(b)
         self._d.xfrc_applied[self.ids.fore_body] = 0.0
 
-    def _apply_masses(self) -> None:
-        """Link masses and inertias of uniform rods (or the plant's stated inertias) at the current lengths,
-        with the hand load as a point mass at the forearm's end (its centre of mass moves towards the hand)."""
-        m, ids, plant = self._m, self.ids, self.plant
-        for body, geom, k in ((ids.upper_body, ids.upper_geom, 0), (ids.fore_body, ids.fore_geom, 1)):
-            length = m.body_pos[ids.fore_body, 0] if k == 0 else m.site_pos[ids.end_site, 0]
-            mass, radius = plant.link_masses[k], m.geom_size[geom, 0]
-            rod = plant.link_inertias[k] * INERTIA_UNIT or mass * length ** 2 / 12.0
-            load = self.load if k == 1 else 0.0
-            total = mass + load
-            com = (mass * length / 2.0 + load * length) / total
-            perp = rod + mass * (length / 2.0 - com) ** 2 + load * (length - com) ** 2
-            m.body_mass[body] = total
-            m.body_ipos[body] = (com, 0.0, 0.0)
-            # principal axes as compiled (body_iquat): the rod's axis is the third
-            m.body_inertia[body] = (perp, perp, mass * radius ** 2 / 2.0)
-
     def step(self, nstep: int = 1) -> None:
-        """dm_control's step; with a force field on, the field's force is set before every sub-step from the
-        hand's velocity then (mj_step1 / field / mj_step2, MuJoCo's scheme for state-dependent inputs)."""
+        """dm_control's step; with a force field on, the plant's (:meth:`Plant.step`): the field's force set
+        before every sub-step from the hand's velocity then."""
         if self.field_b == 0.0:
             return super().step(nstep)
-        m, d = self._m, self._d
         with self.check_invalid_state():
-            for _ in range(nstep):
-                mujoco.mj_step1(m, d)
-                self._apply_field()
-                mujoco.mj_step2(m, d)
-            mujoco.mj_step1(m, d)
+            self.dynamics.step(nstep)
 
     def _apply_field(self) -> None:
-        """xfrc_applied on the forearm: the field's force at the hand, as a force and torque at the centre of
-        mass (MuJoCo applies xfrc_applied there). Scalar arithmetic on cached views: this runs every sub-step."""
-        v, hand, com, b = self._vel6, self._hand_x, self._fore_com, self.field_b
-        mujoco.mj_objectVelocity(self._m, self._d, _SITE, self.ids.end_site, v, 0)
-        fx, fy = b * v[4], -b * v[3]  # F = B v, B = [[0, b], [-b, 0]]; N·s/m = kg/s in cm units too
-        ax, ay, az = hand[0] - com[0], hand[1] - com[1], hand[2] - com[2]
-        self._fore_xfrc[:] = (fx, fy, 0.0, -az * fy, az * fx, ax * fy - ay * fx)  # force; arm x force
+        """The field's force on the arm now (:meth:`Plant.apply_field`; it runs every sub-step)."""
+        self.dynamics.apply_field()
 
     def hand_velocity(self) -> np.ndarray:
         """The hand's (x, y) velocity in cm/s."""
@@ -300,8 +246,8 @@ class Physics(engine.Physics):
 
     def field_force_model(self) -> np.ndarray:
         """The field's force at the hand now, (x, y) in MuJoCo's units (kg·cm/s^2): F = B v."""
-        vx, vy = self.hand_velocity()
-        return np.array([self.field_b * vy, -self.field_b * vx])
+        v = self.hand_velocity()
+        return curl_force(0.0, v) if self.dynamics is None else self.dynamics.field_force(v)
 
     def field_force(self) -> np.ndarray:
         """The curl field's force at the hand now, (x, y) in N (zeros when off)."""

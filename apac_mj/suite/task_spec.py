@@ -21,7 +21,11 @@ from pathlib import Path
 import numpy as np
 from typing import Any
 
+from apac_mj.suite.plant import (PLANT_ACTUATIONS, PLANT_SOURCES, PLANT_UNITS, STANDARD_GRAVITY,  # noqa: F401
+                                  PlantSpec, TaskSpecError, check_plant, check_task_plant, describe_plant,
+                                  finite_number, parse_plant, plant_override)
 from apac_mj.util import paths
+from apac_mj.util.registry import Registry
 
 
 #: The arm's (shoulder, elbow) angles at every episode's start (degrees): stretched along the x axis, folded back.
@@ -32,10 +36,6 @@ START_ANGLES = (0.0, 180.0)
 #: episode's growth. 100 m for a 13 cm arm: larger values are typos, and the plane's distance field,
 #: renders and floats stop making sense long before 1e308.
 MAX_CM = 1e4
-
-
-class TaskSpecError(ValueError):
-    """A task file (or task override) is malformed."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -114,7 +114,7 @@ class TaskSpec:
     #: report's extra colours that no other condition in the report uses).
     report_color: str = ""
     #: File table ``[plant]``: the arm's dynamics (:class:`PlantSpec`; default: the paper's ideal arm).
-    plant: "PlantSpec" = dataclasses.field(default_factory=lambda: PlantSpec())
+    plant: PlantSpec = dataclasses.field(default_factory=PlantSpec)
 
     def __post_init__(self) -> None:
         _check_choice(self, "target_mode", ("static", "changing"))
@@ -148,7 +148,7 @@ class TaskSpec:
         ox, oy = self.origin
         if not (0 <= ox <= self.plane_size[0] and 0 <= oy <= self.plane_size[1]):
             raise TaskSpecError(f"task {self.name!r}: origin {self.origin} lies outside the plane {self.plane_size}")
-        _check_task_plant(self)
+        check_task_plant(self.name, self.plant)
 
     @property
     def occluded(self) -> bool:
@@ -166,7 +166,7 @@ class TaskSpec:
         if unknown:
             raise TaskSpecError(f"task {self.name!r}: unknown override(s) {sorted(unknown)}")
         typed = {k: v if k == "name" or (k == "region" and isinstance(v, Region))
-                 else _plant_override(v, f"task {self.name!r}: override plant") if k == "plant"
+                 else plant_override(v, f"task {self.name!r}: override plant") if k == "plant"
                  else _coerce(k, v, f"task {self.name!r}: override {k}") for k, v in overrides.items()}
         return dataclasses.replace(self, **typed)
 
@@ -277,13 +277,13 @@ def parse_task(data: dict[str, Any], name: str, source: str = "<dict>") -> TaskS
 
 def _coerce(field: str, value: Any, where: str) -> Any:
     if field == "region":
-        return Region(test_y_min=_number(value, where))
+        return Region(test_y_min=finite_number(value, where))
     if field in _PAIRS:
         if not isinstance(value, (list, tuple)) or len(value) != 2:
             raise TaskSpecError(f"{where} must be a list of two numbers, got {value!r}")
-        return (_number(value[0], where), _number(value[1], where))
+        return (finite_number(value[0], where), finite_number(value[1], where))
     if field in _FLOATS:
-        return _number(value, where)
+        return finite_number(value, where)
     if field in _INTS:
         if not isinstance(value, (int, np.integer)) or isinstance(value, bool):
             raise TaskSpecError(f"{where} must be an integer, got {value!r}")
@@ -291,12 +291,6 @@ def _coerce(field: str, value: Any, where: str) -> Any:
     if not isinstance(value, str):
         raise TaskSpecError(f"{where} must be a string, got {value!r}")
     return value
-
-
-def _number(value: Any, where: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) or not math.isfinite(value):
-        raise TaskSpecError(f"{where} must be a finite number, got {value!r}")
-    return float(value)
 
 
 def load_task_file(path: str | Path) -> TaskSpec:
@@ -314,7 +308,8 @@ def load_task_file(path: str | Path) -> TaskSpec:
 
 
 #: Tasks added at run time by :func:`register_task` (name -> spec), beside the files in tasks/.
-_REGISTERED: dict[str, TaskSpec] = {}
+_REGISTERED: Registry[TaskSpec] = Registry(
+    "task", unknown="task {name!r} was not registered at run time (registered at run time: {names})")
 
 
 def register_task(task: TaskSpec | str | Path, replace: bool = False) -> TaskSpec:
@@ -325,15 +320,12 @@ def register_task(task: TaskSpec | str | Path, replace: bool = False) -> TaskSpe
     spec = task if isinstance(task, TaskSpec) else load_task_file(task)
     if not replace and (spec.name in _REGISTERED or spec.name in task_names(paths.tasks_dir())):
         raise TaskSpecError(f"task {spec.name!r} already exists (pass replace=True to redefine it)")
-    _REGISTERED[spec.name] = spec
-    return spec
+    return _REGISTERED.replace(spec.name, spec)
 
 
 def unregister_task(name: str) -> None:
     """Remove a task added by :func:`register_task`."""
-    if name not in _REGISTERED:
-        raise KeyError(f"task {name!r} was not registered at run time")
-    del _REGISTERED[name]
+    _REGISTERED.unregister(name)
 
 
 def task_names(directory: Path | None = None) -> list[str]:
@@ -351,7 +343,7 @@ def load_task(name: str, directory: Path | None = None) -> TaskSpec:
     """Load ``tasks/<name>.toml`` (or a registered task); an unknown name lists the known ones. A name is
     a file's name in the task directory, never a path out of it (a task file elsewhere: register_task)."""
     if directory is None and name in _REGISTERED:
-        return _REGISTERED[name]
+        return _REGISTERED.get(name)
     where = directory or paths.tasks_dir()
     if not isinstance(name, str) or not _TASK_NAME.fullmatch(name) or len(name) > 200:
         raise KeyError(f"task {name!r} is not a task name: a task is a file in {where} named by its stem "
@@ -361,237 +353,3 @@ def load_task(name: str, directory: Path | None = None) -> TaskSpec:
     if not path.is_file():
         raise KeyError(f"unknown task {name!r}; known tasks: {', '.join(task_names(directory))}")
     return load_task_file(path)
-
-
-# -- the plant: the arm's dynamics (file table [plant]) ------------------------------------------------------------
-
-#: ``[plant] actuation``: "ideal" (the paper's arm: stiff servos reach every command within the step),
-#: "compliant" (position servos with a human arm's stiffness and damping, a fixed control interval per step)
-#: or "torque" (the action is the joint torques, as dm_control's reacher).
-PLANT_ACTUATIONS = ("ideal", "compliant", "torque")
-#: Standard gravity (m/s^2).
-STANDARD_GRAVITY = 9.81
-
-
-@dataclasses.dataclass(frozen=True)
-class PlantSpec:
-    """The arm's dynamics, the file's ``[plant]`` table. Every field: unit and source.
-
-    The default is the paper's idealized arm (``actuation = "ideal"``): the stiff servos of
-    ``assets/planar_arm.xml`` (kp 1e4, kv 200, rotor armature 1, 40 sub-steps of 10 ms) reach every
-    command within the step, the links are nearly massless, no gravity, no external force. Every other
-    field applies to the "compliant" and "torque" plants only (an ideal plant with any of them set is an
-    error). Segment masses and joint impedance are a human arm's; the geometry stays the paper's (cm), so
-    the links' rotational inertia is a human arm's scaled by (5/31)^2 and (8/34)^2 (docs/environment.md).
-    """
-
-    #: "ideal", "compliant" or "torque" (:data:`PLANT_ACTUATIONS`).
-    actuation: str = "ideal"
-    #: Compliant servos' joint stiffness (shoulder, elbow), N·m/rad: the diagonal of the joint stiffness
-    #: matrix K = [[15, 6], [6, 16]] N·m/rad of Shadmehr & Mussa-Ivaldi (1994, J Neurosci 14:3208, their arm
-    #: model); MuJoCo's position servos act per joint, so the off-diagonal coupling (6) is left out.
-    stiffness: tuple[float, float] = (15.0, 16.0)
-    #: Compliant servos' joint damping (shoulder, elbow), N·m·s/rad: the diagonal of the viscosity matrix
-    #: V = [[2.3, 0.9], [0.9, 2.4]] N·m·s/rad of the same model.
-    damping: tuple[float, float] = (2.3, 2.4)
-    #: Duration of one environment step (s): the servos track the command for this long, then the next
-    #: command comes, whether the arm got there or not (10 Hz: the order of the ~100 ms visuomotor loop).
-    control_interval: float = 0.1
-    #: MuJoCo's integration time step (s); a step runs ``control_interval / timestep`` sub-steps.
-    timestep: float = 0.002
-    #: Torque actuation: bound of each joint torque (N·m), the action's bound. A design choice: 3x the
-    #: gravity torque the unloaded arm needs held out straight (1.8 N·m at the shoulder).
-    max_torque: float = 5.0
-    #: Link masses (upper arm, forearm + hand), kg: a human arm's segments (Shadmehr & Mussa-Ivaldi 1994;
-    #: Selen, Franklin & Wolpert 2009, J Neurosci 29:12606, Table 1: 1.93 and 1.52 kg).
-    link_masses: tuple[float, float] = (1.93, 1.52)
-    #: Rotational inertia of each link about its centre of mass (kg·m^2); 0 = a uniform rod, m l^2 / 12,
-    #: at the current link length.
-    link_inertias: tuple[float, float] = (0.0, 0.0)
-    #: Passive joint damping (shoulder, elbow), N·m·s/rad, beside the servos' (MuJoCo's dof_damping).
-    joint_damping: tuple[float, float] = (0.0, 0.0)
-    #: Gravity on: the arm's plane is vertical, gravity (9.81 m/s^2) along -y of the plane (the plane's
-    #: "down" is its bottom edge). Off: a horizontal plane, as the paper's and a manipulandum's.
-    gravity: bool = False
-    #: Point load held in the hand (kg), from the first episode.
-    load: float = 0.0
-    #: Episode (0-based, the task's episode counter as ``growth_start_episode``) from which the load is
-    #: ``load_after``; -1: never (the dynamics counterpart of changing kinematics).
-    load_change_episode: int = -1
-    #: The hand load from ``load_change_episode`` on (kg).
-    load_after: float = 0.0
-    #: Curl field strength b (N·s/m): force at the hand F = B v, B = [[0, b], [-b, 0]], v the hand's velocity
-    #: (Shadmehr & Mussa-Ivaldi 1994); b > 0 turns the force clockwise from the velocity. Curl-field studies
-    #: use b of the order of 10-15 N·s/m on a human-sized arm.
-    field_b: float = 0.0
-    #: First episode with the field on; -1: never.
-    field_on_episode: int = -1
-    #: First episode with the field off again (the after-effect episodes); -1: never off.
-    field_off_episode: int = -1
-    #: Observe the joint velocities (deg/s, observation ``joint_velocities``) beside the positions, as
-    #: dm_control's reacher does.
-    observe_velocities: bool = False
-
-    @property
-    def dynamic(self) -> bool:
-        """Not the paper's ideal arm: masses, compliant or torque actuation."""
-        return self.actuation != "ideal"
-
-    @property
-    def sub_steps(self) -> int:
-        """Physics sub-steps per environment step."""
-        return int(round(self.control_interval / self.timestep))
-
-    def shifted(self, episodes: int) -> "PlantSpec":
-        """This plant with every scheduled episode (load change, field on and off) ``episodes`` later: a run's
-        environment counts its babbling resets too (as ``growth_start_episode``)."""
-        def later(e: int) -> int:
-            return e + episodes if e >= 0 else e
-
-        return dataclasses.replace(self, load_change_episode=later(self.load_change_episode),
-                                   field_on_episode=later(self.field_on_episode),
-                                   field_off_episode=later(self.field_off_episode))
-
-    def load_at(self, episode: int) -> float:
-        """The hand load (kg) in ``episode``."""
-        changed = self.load_change_episode >= 0 and episode >= self.load_change_episode
-        return self.load_after if changed else self.load
-
-    def field_at(self, episode: int) -> float:
-        """The curl field's b (N·s/m) in ``episode`` (0: off)."""
-        on = self.field_on_episode >= 0 and episode >= self.field_on_episode
-        off = self.field_off_episode >= 0 and episode >= self.field_off_episode
-        return self.field_b if on and not off else 0.0
-
-
-#: Units of the ``[plant]`` fields, for ``apac-mj tasks --show``.
-PLANT_UNITS = {"stiffness": "N·m/rad", "damping": "N·m·s/rad", "control_interval": "s", "timestep": "s",
-               "max_torque": "N·m", "link_masses": "kg", "link_inertias": "kg·m^2 (0: uniform rod)",
-               "joint_damping": "N·m·s/rad", "load": "kg", "load_change_episode": "episode (-1: never)",
-               "load_after": "kg", "field_b": "N·s/m", "field_on_episode": "episode (-1: never)",
-               "field_off_episode": "episode (-1: never)"}
-#: Where each default comes from (``apac-mj tasks --show``; docs/environment.md has the full references).
-PLANT_SOURCES = {
-    "stiffness": "diagonal of K = [[15, 6], [6, 16]], Shadmehr & Mussa-Ivaldi 1994",
-    "damping": "diagonal of V = [[2.3, 0.9], [0.9, 2.4]], Shadmehr & Mussa-Ivaldi 1994",
-    "control_interval": "design: ~100 ms visuomotor loop", "timestep": "design: 50 sub-steps per step",
-    "max_torque": "design: 3x the unloaded arm's gravity torque", "link_masses":
-        "human arm: Shadmehr & Mussa-Ivaldi 1994; Selen, Franklin & Wolpert 2009, Table 1",
-    "gravity": "9.81 m/s^2 along -y", "field_b": "F = B v, B = [[0, b], [-b, 0]], Shadmehr & Mussa-Ivaldi 1994",
-}
-_PLANT_PAIRS = {"stiffness", "damping", "link_masses", "link_inertias", "joint_damping"}
-_PLANT_INTS = {"load_change_episode", "field_on_episode", "field_off_episode"}
-_PLANT_BOOLS = {"gravity", "observe_velocities"}
-
-
-def parse_plant(table: Any, source: str) -> PlantSpec:
-    """The ``[plant]`` table as a :class:`PlantSpec`; an unknown key or a bad value raises
-    :class:`TaskSpecError` naming the file, the key and the problem."""
-    if not isinstance(table, dict):
-        raise TaskSpecError(f"{source}: [plant] must be a table")
-    known = {f.name for f in dataclasses.fields(PlantSpec)}
-    kwargs: dict[str, Any] = {}
-    for key, value in table.items():
-        where = f"{source}: plant.{key}"
-        if key not in known:
-            raise TaskSpecError(f"{source}: unknown key plant.{key}; known in [plant]: {sorted(known)}")
-        if key in _PLANT_PAIRS:
-            if not isinstance(value, list) or len(value) != 2:
-                raise TaskSpecError(f"{where} must be a list of two numbers, got {value!r}")
-            kwargs[key] = (_number(value[0], where), _number(value[1], where))
-        elif key in _PLANT_INTS:
-            if not isinstance(value, int) or isinstance(value, bool):
-                raise TaskSpecError(f"{where} must be an integer, got {value!r}")
-            kwargs[key] = value
-        elif key in _PLANT_BOOLS:
-            if not isinstance(value, bool):
-                raise TaskSpecError(f"{where} must be true or false, got {value!r}")
-            kwargs[key] = value
-        elif key == "actuation":
-            if not isinstance(value, str):
-                raise TaskSpecError(f"{where} must be a string, got {value!r}")
-            kwargs[key] = value
-        else:
-            kwargs[key] = _number(value, where)
-    plant = PlantSpec(**kwargs)
-    try:
-        check_plant(plant)
-    except TaskSpecError as e:
-        raise TaskSpecError(f"{source}: {e}") from None
-    return plant
-
-
-def check_plant(plant: PlantSpec) -> None:
-    """Raise :class:`TaskSpecError` naming the ``[plant]`` key unless every value is well-formed and fits
-    the actuation."""
-    if plant.actuation not in PLANT_ACTUATIONS:
-        raise TaskSpecError(f"plant.actuation must be one of {PLANT_ACTUATIONS}, got {plant.actuation!r}")
-    if not plant.dynamic:
-        changed = [f.name for f in dataclasses.fields(plant)
-                   if f.name != "actuation" and getattr(plant, f.name) != getattr(PlantSpec(), f.name)]
-        if changed:
-            raise TaskSpecError(f"plant.{changed[0]} needs a plant with dynamics: the ideal plant (the paper's "
-                                "arm) reaches every command; set plant.actuation = 'compliant' or 'torque'")
-        return
-    for name in ("stiffness", "damping", "link_masses"):
-        for v in getattr(plant, name):
-            if not math.isfinite(v) or v <= 0:
-                raise TaskSpecError(f"plant.{name} must be positive finite numbers, got {getattr(plant, name)}")
-    for name in ("link_inertias", "joint_damping"):
-        for v in getattr(plant, name):
-            if not math.isfinite(v) or v < 0:
-                raise TaskSpecError(f"plant.{name} must be finite numbers >= 0, got {getattr(plant, name)}")
-    for name in ("control_interval", "timestep", "max_torque"):
-        v = getattr(plant, name)
-        if not math.isfinite(v) or v <= 0:
-            raise TaskSpecError(f"plant.{name} must be a positive finite number, got {v!r}")
-    if plant.timestep > plant.control_interval or \
-            abs(plant.sub_steps * plant.timestep - plant.control_interval) > 1e-9 * plant.control_interval:
-        raise TaskSpecError(f"plant.control_interval ({plant.control_interval} s) must be a whole number of "
-                            f"plant.timestep ({plant.timestep} s)")
-    for name in ("load", "load_after", "field_b"):
-        v = getattr(plant, name)
-        if not math.isfinite(v) or (v < 0 and name != "field_b"):
-            raise TaskSpecError(f"plant.{name} must be a finite number{' >= 0' if name != 'field_b' else ''}, "
-                                f"got {v!r}")
-    for name in ("load_change_episode", "field_on_episode", "field_off_episode"):
-        if getattr(plant, name) < -1:
-            raise TaskSpecError(f"plant.{name} must be an episode >= 0, or -1 for never, got {getattr(plant, name)}")
-    if plant.field_b != 0 and plant.field_on_episode < 0:
-        raise TaskSpecError("plant.field_b is set but plant.field_on_episode is -1 (never on)")
-    if plant.field_off_episode >= 0 and plant.field_off_episode <= plant.field_on_episode:
-        raise TaskSpecError(f"plant.field_off_episode ({plant.field_off_episode}) must come after "
-                            f"plant.field_on_episode ({plant.field_on_episode})")
-
-
-def describe_plant(plant: PlantSpec) -> str:
-    """Every ``[plant]`` value with its unit and the source of its default, ``*`` marking those that differ
-    from the defaults."""
-    default = PlantSpec()
-    lines = []
-    for f in dataclasses.fields(plant):
-        v = getattr(plant, f.name)
-        unit = PLANT_UNITS.get(f.name, "")
-        source = PLANT_SOURCES.get(f.name, "")
-        lines.append(f"{'*' if v != getattr(default, f.name) else ' '} plant.{f.name} = {v!r}"
-                     + (f"  [{unit}]" if unit else "") + (f"  ({source})" if source else ""))
-    return "\n".join(lines)
-
-
-def _check_task_plant(spec: TaskSpec) -> None:
-    """``spec.plant`` is a well-formed :class:`PlantSpec`."""
-    if not isinstance(spec.plant, PlantSpec):
-        raise TaskSpecError(f"task {spec.name!r}: plant must be a PlantSpec, got {type(spec.plant).__name__}")
-    try:
-        check_plant(spec.plant)
-    except TaskSpecError as e:
-        raise TaskSpecError(f"task {spec.name!r}: {e}") from None
-
-
-def _plant_override(value: Any, where: str) -> "PlantSpec":
-    """A ``plant`` override: a :class:`PlantSpec`, or a table of ``[plant]`` keys (checked as in a file)."""
-    if isinstance(value, PlantSpec):
-        return value
-    if isinstance(value, dict):
-        return parse_plant(value, where)
-    raise TaskSpecError(f"{where} must be a PlantSpec or a table of [plant] keys, got {value!r}")

@@ -1,7 +1,7 @@
 """VecEnv: E ``suite`` environments side by side, one per seed, with exact save/restore.
 
-Member ``k`` is ``suite.load(task, task_kwargs={"random": seeds[k], ...})``;
-members share nothing. :meth:`VecEnv.step` and :meth:`VecEnv.reset` touch only
+Member ``k`` is the task's environment seeded ``seeds[k]`` (what ``suite.load(task, task_kwargs={"random":
+seeds[k], ...})`` builds), all from one resolved :class:`TaskSpec`; members share nothing. :meth:`VecEnv.step` and :meth:`VecEnv.reset` touch only
 the members in a mask, so members run free (each its own episode sequence).
 :meth:`VecEnv.get_state` captures everything needed to continue bit-exactly
 mid-episode: MuJoCo's integration state (``mj_getState`` with
@@ -20,8 +20,11 @@ from typing import Any, Sequence
 import mujoco
 import numpy as np
 import torch
+from dm_control.rl import control
 
 from apac_mj import suite
+from apac_mj.kinematics import Sizes
+from apac_mj.suite import planar_arm
 from apac_mj.suite.task_spec import TaskSpec
 from apac_mj.types import Observation
 
@@ -34,28 +37,45 @@ _SIG = int(mujoco.mjtState.mjSTATE_INTEGRATION)
 class VecEnv:
     """E environments of one task (one per seed), stepped under a member mask."""
 
-    def __init__(self, task: str, seeds: Sequence[int], actuation: str = "servo",
-                 overrides: dict[str, Any] | None = None) -> None:
+    def __init__(self, task: str | TaskSpec, seeds: Sequence[int], actuation: str = "servo",
+                 overrides: dict[str, Any] | None = None, episode_offset: int = 0) -> None:
+        """``task``: a resolved :class:`TaskSpec` (built once by the caller), or a task name (read here), with
+        ``overrides`` (TaskSpec fields) applied. ``episode_offset``: the episodes each member runs before its
+        episode 0 (a run's motor babbling): its count starts at ``-episode_offset``, so changing kinematics
+        (``growth_start_episode``) and the plant's schedule count from episode 0 (:meth:`episode`)."""
         seeds = [int(s) for s in seeds]
         if not seeds:
             raise ValueError("VecEnv needs at least one seed")
         if len(set(seeds)) != len(seeds):
             raise ValueError(f"seeds must be distinct, got {seeds}")
-        self.task, self.seeds, self.actuation = task, seeds, actuation
-        self.overrides = dict(overrides or {})
-        self.envs = [suite.load("planar_arm", task, task_kwargs={"random": s, "actuation": actuation,
-                                                                 **self.overrides}) for s in seeds]
+        if isinstance(episode_offset, bool) or not isinstance(episode_offset, int) or episode_offset < 0:
+            raise ValueError(f"episode_offset must be an int >= 0, got {episode_offset!r}")
+        spec = suite.load_spec(task) if isinstance(task, str) else task
+        spec = spec.replace(**overrides) if overrides else spec
+        if episode_offset:  # the environment counts every reset: its schedule moves by the offset, here only
+            spec = spec.replace(growth_start_episode=spec.growth_start_episode + episode_offset,
+                                **({"plant": spec.plant.shifted(episode_offset)} if spec.plant.dynamic else {}))
+        self.seeds, self.actuation, self.episode_offset = seeds, actuation, episode_offset
+        self.envs = [planar_arm.make_environment(spec, actuation=actuation, random=s) for s in seeds]
         self.E = len(seeds)
-        self.spec: TaskSpec = self.envs[0].task.spec
+        #: The task as the environments run it (the offset applied).
+        self.spec: TaskSpec = spec
         #: Names of the observed arrays beyond the paper's positions and vision flag (e.g. joint_velocities),
         #: in the observation's order, and their latest values ``[E, n]`` (read like ``obs``; not part of
         #: :meth:`get_state`: a step or reset writes them before they are read).
-        spec = self.envs[0].observation_spec()
-        self.extra_names = [k for k in spec if k not in _PAPER_OBSERVATIONS]
-        self.extra = np.zeros((self.E, sum(int(np.prod(spec[k].shape)) for k in self.extra_names)))
+        obs_spec = self.envs[0].observation_spec()
+        self.extra_names = [k for k in obs_spec if k not in _PAPER_OBSERVATIONS]
+        self.extra = np.zeros((self.E, sum(int(np.prod(obs_spec[k].shape)) for k in self.extra_names)))
+        #: The agent's sizes, read from the environments' dm_env specs.
+        self.sizes = Sizes.from_specs(obs_spec, self.envs[0].action_spec())
         self.obs = Observation(arm=np.zeros((self.E, 4)), target=np.zeros((self.E, 2)),
                                vision=np.zeros(self.E, dtype=bool), reward=np.zeros(self.E),
                                last=np.zeros(self.E, dtype=bool), reached=np.zeros(self.E, dtype=bool))
+
+    @property
+    def task(self) -> str:
+        """The task's name."""
+        return self.spec.name
 
     # -- stepping -----------------------------------------------------------------
     def _mask(self, mask: Sequence[bool] | np.ndarray | None) -> np.ndarray:
@@ -87,7 +107,7 @@ class VecEnv:
         if actions.shape != (self.E, 2):
             raise ValueError(f"actions must have shape ({self.E}, 2), got {actions.shape}")
         for k in np.flatnonzero(self._mask(mask)):
-            if self.envs[k]._reset_next_step:
+            if episode_ended(self.envs[k]):
                 raise RuntimeError(f"member {k} (seed {self.seeds[k]}) stepped after its episode ended; "
                                    "reset it first")
             self._record(k, self.envs[k].step(actions[k]))
@@ -99,6 +119,10 @@ class VecEnv:
 
     def reach_task(self, k: int):
         return self.envs[k].task
+
+    def episode(self, k: int) -> int:
+        """Member ``k``'s current episode, counted from its first episode after the offset (babbling negative)."""
+        return self.envs[k].task.episode - self.episode_offset
 
     def set_target_override(self, targets: np.ndarray | None, mask: Sequence[bool] | np.ndarray | None = None) -> None:
         """Targets ``[E, 2]`` for the next episodes of the members in ``mask`` (None: sample again)."""
@@ -169,7 +193,7 @@ def _member_state(env) -> dict[str, Any]:
                  else torch.from_numpy(task._target_override.copy()),
                  "step_count": int(task.step_count), "seen": bool(ts["seen"]),
                  "noise": None if ts["noise"] is None else torch.from_numpy(ts["noise"].copy())},
-        "env_step_count": int(env._step_count), "reset_next_step": bool(env._reset_next_step),
+        **_environment_counters(env),
     }
 
 
@@ -192,5 +216,21 @@ def _set_member_state(env, s: dict[str, Any]) -> None:
     p.set_target(s["target"].numpy())
     p.set_state(s["mj_state"].numpy(), sig=_SIG)
     mujoco.mj_forward(p.model.ptr, p.data.ptr)
+    _set_environment_counters(env, s)
+
+
+# -- dm_control's control.Environment keeps its step counter and reset flag in private attributes (dm_control
+# 1.0.50: ``_step_count``, ``_reset_next_step``); these three functions are the only readers and writers, and
+# tests/test_suite.py pins them.
+def episode_ended(env: control.Environment) -> bool:
+    """The environment's episode ended: its next ``step`` would reset it (dm_control's ``_reset_next_step``)."""
+    return bool(env._reset_next_step)
+
+
+def _environment_counters(env: control.Environment) -> dict[str, Any]:
+    return {"env_step_count": int(env._step_count), "reset_next_step": bool(env._reset_next_step)}
+
+
+def _set_environment_counters(env: control.Environment, s: dict[str, Any]) -> None:
     env._step_count = int(s["env_step_count"])
     env._reset_next_step = bool(s["reset_next_step"])

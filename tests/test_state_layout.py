@@ -1,0 +1,84 @@
+"""The agent's state layout, named once (``apac_mj.types``): ``[end (2), elbow (2), target (2), extra...]``.
+
+* no positional slice of the state is left outside :mod:`apac_mj.types` (a source scan);
+* :func:`apac_mj.agent.arbitration.step_signals` reads the target as the target when the state has extra
+  columns (the task's joint velocities), which it once did not (``state[:, 4:]``);
+* every registered agent kind trains on every registered task, end to end (as dm_control's suite test
+  covers ``ALL_TASKS``): a kind that reads the state by position on a task with extra observations
+  crashes here.
+"""
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+
+import apac_mj
+from apac_mj import kinds
+from apac_mj.agent.arbitration import step_signals
+from apac_mj.config import AgentConfig, TrainConfig
+from apac_mj.suite.task_spec import task_names
+from apac_mj.types import ARM, ELBOW, END, EXTRA, POSITION_DIM, POSITIONS, TARGET, StepInfo
+
+from conftest import TINY8 as TINY
+
+PACKAGE = Path(__file__).resolve().parents[1] / "apac_mj"
+#: Positional slices of the state: ``[:, 4:]``, ``[b, :4]``, ``[..., 0:2]`` and the like.
+POSITIONAL = re.compile(r"\[(?::|b|\.\.\.), ?(?:4:6|4:|:4|:2|0:2|2:4|6:|:6|0:6)\]")
+#: Files allowed to slice the state by position: the layout's own module only.
+ALLOWED = {PACKAGE / "types.py"}
+
+
+def test_the_layout_names():
+    state = np.arange(10)[None]  # a state with 4 extra columns
+    assert state[:, END].tolist() == [[0, 1]] and state[:, ELBOW].tolist() == [[2, 3]]
+    assert state[:, ARM].tolist() == [[0, 1, 2, 3]] and state[:, TARGET].tolist() == [[4, 5]]
+    assert state[:, POSITIONS].tolist() == [list(range(6))] and state[:, EXTRA].tolist() == [[6, 7, 8, 9]]
+    assert POSITION_DIM == 6 == POSITIONS.stop
+
+
+def test_no_positional_state_slice_outside_the_layout():
+    found = [f"{path.relative_to(PACKAGE.parent)}:{n}: {line.strip()}"
+             for path in sorted(PACKAGE.rglob("*.py")) if path not in ALLOWED
+             for n, line in enumerate(path.read_text().splitlines(), 1) if POSITIONAL.search(line)]
+    assert not found, "read the state through apac_mj.types' names (END, ELBOW, ARM, TARGET, ...):\n" + \
+        "\n".join(found)
+
+
+def _info(state: np.ndarray, next_state: np.ndarray) -> StepInfo:
+    E = len(state)
+    z, f = np.zeros(E, dtype=bool), np.zeros(E, dtype=np.float32)
+    return StepInfo(episode=np.zeros(E, dtype=np.int64), step=np.zeros(E, dtype=np.int64), active=~z,
+                    state=state, true_arm=next_state[:, :4].copy(), target=next_state[:, 4:6].copy(),
+                    action=np.zeros((E, 2), dtype=np.float32), habit=~z, delta=f, predicted_arm=next_state[:, :4].copy(),
+                    reward=f, distance=f, done=z, reached=z, vision=~z, joint_angles=np.zeros((E, 2)),
+                    link_lengths=np.ones((E, 2)), next_state=next_state, terminal=z, zone_radius=0.5)
+
+
+def test_step_signals_read_the_target_with_extra_columns():
+    # [end, elbow, target, 4 joint velocities]; the velocities are large so that reading them as the
+    # target would show
+    state = np.array([[0, 0, 5, 5, 3, 4, 90, -90, 7, 7],
+                      [1, 1, 2, 2, 1, 1, 50, 50, 50, 50]], dtype=np.float32)
+    next_state = np.array([[3, 1, 5, 5, 3, 5, 80, 80, 80, 80],
+                           [4, 5, 2, 2, 1, 1, -9, -9, -9, -9]], dtype=np.float32)
+    sig = step_signals(_info(state, next_state))
+    np.testing.assert_allclose(sig["before"].numpy(), [5.0, 0.0])   # |(0,0)-(3,4)|, |(1,1)-(1,1)|
+    np.testing.assert_allclose(sig["after"].numpy(), [4.0, 5.0])    # |(3,1)-(3,5)|, |(4,5)-(1,1)|
+    assert sig["before"].dtype == sig["after"].dtype == torch.float32
+
+
+@pytest.mark.parametrize("task", task_names())
+@pytest.mark.parametrize("kind", kinds.names())
+def test_every_kind_trains_on_every_task(tmp_path, kind, task):
+    cfg = TrainConfig(task=task, seeds=(0,), episodes=2, checkpoint_every=2, agent=AgentConfig(kind=kind, **TINY))
+    run = apac_mj.train(cfg, tmp_path, progress=False)
+    metrics = pd.read_parquet(run / "metrics.parquet")
+    train = metrics[metrics.phase == "train"]
+    assert train.groupby("seed").size().to_dict() == {0: 2}
+    assert all(math.isfinite(r) for r in train["return"])
