@@ -108,3 +108,23 @@ def test_each_set_of_choices_is_declared_once():
     found = [f"{p.relative_to(ROOT)}: {text}" for p in sorted((ROOT / "apac_mj").rglob("*.py"))
              if p.name != "config.py" for text in patterns if text in p.read_text()]
     assert not found, found
+
+
+def test_the_trainer_carries_its_state_as_an_object():
+    """No trainer function takes more than 5 parameters (``self`` not counted; the public ``train`` keeps its
+    documented keywords): the loop's state lives on the ``Trainer``, not in argument lists."""
+    import ast
+
+    tree = ast.parse((ROOT / "apac_mj/run/trainer.py").read_text())
+    wide = {}
+    for node in ast.walk(tree):
+        if isinstance(node, ast.FunctionDef) and node.name != "train":
+            args = [a.arg for a in node.args.args + node.args.kwonlyargs if a.arg not in ("self", "cls")]
+            if len(args) > 5:
+                wide[node.name] = args
+    assert not wide, wide
+    from apac_mj.run.run_dir import RunDir
+    from apac_mj.run.trainer import Trainer
+
+    trainer = Trainer(TrainConfig(), build.check(TrainConfig()), RunDir("not-written"))
+    assert {"run", "state", "rows", "babbling_generators", "saved_at"} <= set(vars(trainer))
