@@ -139,7 +139,8 @@ def analyse(run: Path) -> dict[str, Any]:
     per_seed = full.groupby("seed").agg(apac_success=("success", "mean"), targets=("success", "size"))
     per_seed["failures"] = fails.groupby("seed").size() if len(fails) else 0
     per_seed = per_seed.fillna({"failures": 0})
-    return {"run": str(run), "kind": cfg.agent.kind, "task": cfg.task, "precision": cfg.precision,
+    # the run as OUT/<results>/<cell>: a published file names no folder of the machine that wrote it
+    return {"run": f"OUT/{run.parent.name}/{run.name}", "kind": cfg.agent.kind, "task": cfg.task, "precision": cfg.precision,
             "episodes": cfg.episodes, "delta_threshold": cfg.agent.delta_threshold,
             "test_success": per_seed.reset_index().to_dict(orient="records"),
             "failures": fails.to_dict(orient="records"), "summary": summarize(fails)}

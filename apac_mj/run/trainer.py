@@ -156,7 +156,7 @@ class Trainer:
     def train(self) -> Path:
         """Build the run, restore its checkpoint if it has one, train until every member finished."""
         cfg, run_dir = self.cfg, self.run_dir
-        config, run_episodes = run_dir.prepare(cfg)
+        _, run_episodes = run_dir.prepare(cfg)  # the same JSON form as self.config
         if run_episodes == cfg.episodes and run_dir.check_finished():
             say(f"{run_dir.path} already finished {cfg.episodes} episodes; nothing to train "
                 f"(a larger --episodes extends it)")
@@ -169,7 +169,7 @@ class Trainer:
             self._restore()
             self.saved_at = self.state.slowest()
             _say_resume(run_dir.path, self.state, run_episodes, cfg.episodes)
-        run_dir.write_config(config, run_episodes)
+        run_dir.write_config(self.config, run_episodes)
         self.bar, self.window = _progress_bar(cfg, self.state, self.rows, self.progress)
         try:
             self._loop()
