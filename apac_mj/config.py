@@ -29,6 +29,10 @@ DEVICES = ("cpu", "cuda")
 MAX_EPISODES = 10**9
 
 
+#: ``AgentConfig.executed_action``'s choices.
+EXECUTED_ACTIONS = ("auto", "joint_change", "command")
+
+
 @dataclasses.dataclass(frozen=True)
 class AgentConfig:
     """The agent: habit system (DDPG), planning system, arbitrator, integrator."""
@@ -123,6 +127,15 @@ class AgentConfig:
     #: the plant made, commands beyond a joint limit clipped) or "commanded" (the arbitrated command
     #: plus noise, as standard DDPG stores it). The inverse model always learns the executed one.
     critic_action: str = "executed"
+    #: What the *executed* action is (the inverse model's hindsight label; with critic_action = "executed"
+    #: also what the critic and the forward model learn from): "joint_change" (the arm's measured
+    #: joint-angle change over the step: the paper's, whose ideal arm executes every command within the joint
+    #: limits), "command" (the command as the plant received it: clipped to the joint range, or to the torque
+    #: bound) or "auto" (joint_change on the ideal plant, command on a dynamic plant). On a compliant arm the
+    #: measured change falls short of the set-point (the servo lags, gravity sags it), so an inverse model
+    #: trained on it commands too little and never learns the offset against gravity (docs/agent.md:
+    #: measured on changing_target_compliant_gravity).
+    executed_action: str = "auto"
     #: Weight of a penalty on actor commands beyond the joint limits (the plant clips them, so the
     #: critic never sees them and extrapolates; 0 = the paper, no penalty).
     feasibility_weight: float = 0.0
@@ -165,6 +178,7 @@ class AgentConfig:
                 raise ValueError(f"{name} must be in (0, 1], got {v}")
         for name, choices in (("critic_form", ("concat", "summed", "separable")), ("action_squash", ("tanh", "feasible")),
                               ("delta_rule", ("abs", "signed")), ("critic_action", ("executed", "commanded")),
+                              ("executed_action", EXECUTED_ACTIONS),
                               ("integrator", tuple(rules.INTEGRATORS))):
             if getattr(self, name) not in choices:
                 raise ValueError(f"{name} must be one of {choices}, got {getattr(self, name)!r}")
@@ -280,7 +294,10 @@ MOVED = {"arbitration_window": (("uncertainty", "window"), ("reliability", "wind
 
 
 #: AgentConfig fields added after a release, with the value that behaves as that release did (JSON shape).
-ADDED = {"bf16_networks": list(TRAINED_NETWORKS)}
+ADDED = {"bf16_networks": list(TRAINED_NETWORKS),
+         # releases up to 192b762 learned the measured joint change on every joint-angle plant (torque plants:
+         # the command, but their networks predate the velocity inputs and cannot be loaded any more)
+         "executed_action": "joint_change"}
 
 
 def migrate(d: dict[str, Any]) -> dict[str, Any]:

@@ -6,6 +6,7 @@ degrees, lengths in centimetres, exactly as in the paper.
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -136,6 +137,16 @@ class Sizes:
     #: The actions are joint-angle changes (degrees), which the joint range limits (:class:`Geometry`);
     #: False: other actions (torques), bounded only by ``action_bound``.
     angle_actions: bool = True
+    #: The scale of each extra entry (its observation spec's bound, e.g. 500 deg/s for joint velocities): the
+    #: networks read ``extra / extra_scale``, order 1 as the normalized positions. One per extra entry.
+    extra_scale: tuple[float, ...] = ()
+
+    def __post_init__(self) -> None:
+        if len(self.extra_scale) != self.extra_dim:
+            raise ValueError(f"Sizes: {self.extra_dim} extra state entries need as many scales, got "
+                             f"extra_scale={self.extra_scale}")
+        if not all(math.isfinite(v) and v > 0 for v in self.extra_scale):
+            raise ValueError(f"Sizes: extra_scale must be positive finite numbers, got {self.extra_scale}")
 
     @property
     def extra_dim(self) -> int:
@@ -150,10 +161,20 @@ class Sizes:
         if names[:3] != ["end_effector", "elbow", "target"]:
             raise ValueError(f"the agent needs the observations end_effector, elbow, target first, got {names}")
         state_dim = sum(int(np.prod(s.shape)) for name, s in observation_spec.items() if name != "vision")
+        scales: list[float] = []
+        for name, s in list(observation_spec.items())[3:]:
+            if name == "vision":
+                continue
+            bound = np.broadcast_to(getattr(s, "maximum", np.nan), s.shape).ravel().astype(float)
+            if not np.all(np.isfinite(bound)) or np.any(bound <= 0) or \
+                    not np.all(np.broadcast_to(getattr(s, "minimum", np.nan), s.shape).ravel() == -bound):
+                raise ValueError(f"the agent reads every observation beyond the positions by its scale: "
+                                 f"{name!r} must be a bounded array with symmetric bounds (its scale), got {s}")
+            scales.extend(float(b) for b in bound)
         lo, hi = np.broadcast_to(action_spec.minimum, action_spec.shape), np.broadcast_to(action_spec.maximum,
                                                                                             action_spec.shape)
         if len(action_spec.shape) != 1 or not np.all(hi == -lo) or not np.all(hi == hi.flat[0]) or hi.flat[0] <= 0:
             raise ValueError(f"the agent needs a 1-D action with one symmetric bound, got shape "
                              f"{action_spec.shape}, bounds [{action_spec.minimum}, {action_spec.maximum}]")
         return cls(state_dim=state_dim, action_dim=int(action_spec.shape[0]), action_bound=float(hi.flat[0]),
-                   angle_actions=action_spec.name == ANGLE_ACTIONS)
+                   angle_actions=action_spec.name == ANGLE_ACTIONS, extra_scale=tuple(scales))

@@ -51,6 +51,9 @@ TARGET = slice(4, 6)
 POSITIONS = slice(0, 6)
 #: The task's extra observations (empty on the paper's tasks).
 EXTRA = slice(6, None)
+#: In an ``[end, elbow, extra...]`` array (the forward model's prediction where the task observes more than
+#: the positions): the extra part.
+MOTION_EXTRA = slice(4, None)
 #: Width of the positions; the state is ``POSITION_DIM + extra`` wide.
 POSITION_DIM = 6
 
@@ -263,13 +266,13 @@ class Policy(Protocol):
         """Habit proposal ``[E, 6 + extra] -> [E, 2]`` degrees (no noise)."""
 
     def inverse_action(self, state: torch.Tensor) -> torch.Tensor:
-        """Planning proposal ``[E, 6 + extra] -> [E, 2]`` degrees (no noise; from the positions)."""
+        """Planning proposal ``[E, 6 + extra] -> [E, 2]`` degrees (no noise)."""
 
     def executable(self, a: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
         """The part of command ``a`` ``[E, 2]`` the plant can execute from the pose in ``s``."""
 
-    def predict_arm(self, arm: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
-        """Forward model: ``[end, elbow]`` ``[E, 4]`` + action ``[E, 2]`` -> next ``[end, elbow]``."""
+    def predict_arm(self, state: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        """Forward model: state ``[E, 6 + extra]`` + action ``[E, 2]`` -> next ``[end, elbow]`` ``[E, 4]``."""
 
     def td_error(self, s: torch.Tensor, a: torch.Tensor, r: torch.Tensor, s2: torch.Tensor,
                  done: torch.Tensor) -> torch.Tensor:

@@ -5,6 +5,8 @@ file by file (metrics.parquet, eval/*.parquet, eval/summary.json, config.json an
     git worktree add /tmp/base OLD && PYTHONPATH=/tmp/base python bench/identity.py run OUT/before
     python bench/identity.py run OUT/after
     python bench/identity.py compare OUT/before OUT/after
+    python bench/identity.py compare OUT/before OUT/after --ignore-key executed_action --exclude compliant \
+        --exclude torque     # issue 27: a new config field; the dynamics tasks are meant to move
 
 Each cell trains 2 seeds for a few tiny episodes (babbling, planning and habit phases), in two calls (half, then
 extended to the full length: the resume path), then runs the frozen tests on a few targets. A cell that raises
@@ -20,7 +22,7 @@ import sys
 import time
 import traceback
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -66,8 +68,14 @@ def _cell(apac_mj: Any, kind: str, task: str, cell: Path) -> None:
     apac_mj.evaluate(run_dir, protocols, limit=LIMIT)
 
 
-def compare(a: Path, b: Path) -> int:
+def compare(a: Path, b: Path, ignore: Sequence[str] = (), exclude: Sequence[str] = ()) -> int:
+    """File by file; ``ignore``: keys (at any depth of a JSON file or checkpoint) left out on both sides, e.g. a
+    config field added between the commits; ``exclude``: substrings of cell names not compared (listed)."""
+    global _NOT_COMPUTED
+    _NOT_COMPUTED = (*_NOT_COMPUTED, *ignore)
     cells = sorted({p.name for p in a.iterdir() if p.is_dir()} | {p.name for p in b.iterdir() if p.is_dir()})
+    skipped = [c for c in cells if any(x in c for x in exclude)]
+    cells = [c for c in cells if c not in skipped]
     compared = differing = 0
     only = []
     for name in cells:
@@ -82,7 +90,9 @@ def compare(a: Path, b: Path) -> int:
             if problem:
                 differing += 1
                 print(f"DIFFERS {name}/{rel}: {problem}")
-    print(f"{len(cells)} cells, {compared} files compared, {differing} differing")
+    print(f"{len(cells)} cells, {compared} files compared, {differing} differing"
+          + (f"; {len(skipped)} cells excluded ({', '.join(exclude)})" if skipped else "")
+          + (f"; keys ignored: {', '.join(ignore)}" if ignore else ""))
     for line in only:
         print("NOT COMPARED", line)
     return 1 if differing else 0
@@ -164,11 +174,17 @@ def main() -> int:
     c = sub.add_parser("compare", help="compare two smoke grids file by file; exit 1 if any file differs")
     c.add_argument("before", type=Path)
     c.add_argument("after", type=Path)
+    c.add_argument("--ignore-key", action="append", default=[], metavar="KEY",
+                   help="leave this key out of every JSON file and checkpoint on both sides (a config field added "
+                        "between the commits); repeatable")
+    c.add_argument("--exclude", action="append", default=[], metavar="TEXT",
+                   help="do not compare cells whose name contains TEXT (e.g. the tasks a change is meant to move); "
+                        "repeatable")
     args = p.parse_args()
     if args.command == "run":
         run(args.out, args.kinds, args.tasks)
         return 0
-    return compare(args.before, args.after)
+    return compare(args.before, args.after, args.ignore_key, args.exclude)
 
 
 if __name__ == "__main__":

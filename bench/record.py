@@ -38,7 +38,7 @@ from apac_mj import suite
 from apac_mj.config import TrainConfig
 from apac_mj.kinematics import Sizes
 from apac_mj.run.build import make_agent
-from apac_mj.types import ARM
+
 
 
 def _state(env) -> np.ndarray:
@@ -65,7 +65,7 @@ def _training_step(seeds: int) -> Callable[[], None]:
         s = torch.as_tensor(np.stack([_state(e) for e in envs]), dtype=torch.float32)
         a = agent.actor_action(s) + agent.noise.sample()
         agent.inverse_action(s)
-        agent.predict_arm(s[:, ARM], a)
+        agent.predict_arm(s, a)
         rewards = []
         for env, ak in zip(envs, a.numpy().astype(np.float64)):
             ts = env.step(ak)

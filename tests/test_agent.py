@@ -208,7 +208,7 @@ def test_proposals_shapes_and_ranges():
     agent = Agent(small_cfg(), [0, 1])
     s = torch.rand(2, 6) * 30
     assert agent.actor_action(s).shape == (2, 2) and agent.inverse_action(s).abs().max() <= 180
-    arm = agent.predict_arm(s[:, :4], torch.zeros(2, 2))
+    arm = agent.predict_arm(s, torch.zeros(2, 2))
     assert arm.shape == (2, 4) and ((arm >= 0) & (arm <= 30)).all()
 
 

@@ -290,7 +290,7 @@ def test_sizes_come_from_the_specs():
 
     assert sizes("changing_target") == Sizes() == Sizes(6, 2, 180.0, True)
     assert sizes(CURL) == Sizes()
-    assert sizes(TORQUE) == Sizes(8, 2, 0.5, False)
+    assert sizes(TORQUE) == Sizes(8, 2, 0.5, False, (500.0, 500.0))  # the velocities read by their scale (deg/s)
 
 
 def test_the_paper_agent_trains_on_the_torque_arm(tmp_path):

@@ -3,7 +3,10 @@
 Habit system: DDPG actor + critic with target networks (soft updates, tau).
 Planning system: forward model (next [end, elbow] from [end, elbow] + action)
 and inverse model (action from [end_t, elbow_t, end_{t+1}], trained in
-hindsight; at action time the target replaces end_{t+1}).
+hindsight; at action time the target replaces end_{t+1}). Where the task observes
+more than the positions (the joint velocities of a dynamic arm), both models read
+it too and the forward model predicts it: their input is then a Markov state.
+Every network reads each extra entry divided by its scale (``Sizes.extra_scale``).
 
 The update is written once, as losses (:meth:`Agent.losses`) differentiated
 by autograd and stepped by ``torch.optim.Adam`` on per-member views of the
@@ -29,7 +32,7 @@ from torch import nn
 from apac_mj.agent.replay import EnsembleReplay
 from apac_mj.config import PRECISIONS, AgentConfig
 from apac_mj.kinematics import Geometry, Sizes
-from apac_mj.types import ARM, ELBOW, END, LOSSES, POSITIONS
+from apac_mj.types import ARM, ELBOW, END, EXTRA, LOSSES, MOTION_EXTRA, POSITIONS, TARGET
 from apac_mj.agent.networks import build_actor, build_critic, build_forward_model, build_inverse_model
 from apac_mj.agent.noise import OUNoise
 
@@ -77,8 +80,11 @@ class Agent:
         S, A = self.state_dim, self.action_dim
         self.actor = build_actor(cfg.actor_hidden, init, S, A).to(self.device)
         self.critic = build_critic(cfg.critic_hidden, init, cfg.critic_form, S, A).to(self.device)
-        self.forward_model = build_forward_model(cfg.forward_hidden, self.plane_scale, init, A).to(self.device)
-        self.inverse_model = build_inverse_model(cfg.inverse_hidden, init, A).to(self.device)
+        X = self.sizes.extra_dim
+        #: Scale of each extra state entry (its observation's bound, e.g. deg/s): the networks read extra / scale.
+        self.extra_scale = torch.tensor(self.sizes.extra_scale, dtype=torch.float32, device=self.device)
+        self.forward_model = build_forward_model(cfg.forward_hidden, self.plane_scale, init, A, X).to(self.device)
+        self.inverse_model = build_inverse_model(cfg.inverse_hidden, init, A, X).to(self.device)
         self.target_actor = _frozen_copy(self.actor)
         self.target_critic = _frozen_copy(self.critic)
         self.optimizer, self._views = _member_adam(
@@ -97,6 +103,29 @@ class Agent:
             return x
         half = self.plane_scale / 2
         return (x - half) / half
+
+    def _state(self, s: torch.Tensor) -> torch.Tensor:
+        """Network input for a state ``[..., 6 + extra]``: the positions as :meth:`_pos`, each extra entry (e.g.
+        joint velocities) divided by its own scale (``Sizes.extra_scale``); identity unless ``normalize_inputs``.
+        On the paper's tasks (no extra) exactly :meth:`_pos`."""
+        if not self.sizes.extra_dim or not self.cfg.normalize_inputs:
+            return self._pos(s)
+        return torch.cat([self._pos(s[..., POSITIONS]), s[..., EXTRA] / self.extra_scale], -1)
+
+    def _motion(self, x: torch.Tensor) -> list[torch.Tensor]:
+        """The arm's motion as the internal models read it, from a network-input state ``x``: ``[arm]``, or
+        ``[arm, extra]`` where the task observes more (the joint velocities: a Markov state under dynamics)."""
+        return [x[..., ARM], x[..., EXTRA]] if self.sizes.extra_dim else [x[..., ARM]]
+
+    def _inverse_input(self, x: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        """The inverse model's input: the motion (:meth:`_motion`) and the hand's goal ``[..., 2]`` (network
+        units): ``[end, elbow, goal]`` on the paper's tasks."""
+        return torch.cat([*self._motion(x), goal], -1)
+
+    def _forward_extra(self, y: torch.Tensor) -> torch.Tensor:
+        """The forward model's extra outputs ``y[..., MOTION_EXTRA]`` (sigmoid x plane_scale) as normalized extras, in
+        ``[-2, 2]`` (the observed entries divided by their scale; the arm may exceed the scale)."""
+        return 2.0 * (2.0 * y[..., MOTION_EXTRA] / self.plane_scale - 1.0)
 
     def _act(self, a: torch.Tensor) -> torch.Tensor:
         """Network input for actions (degrees); identity unless ``normalize_inputs``."""
@@ -151,21 +180,27 @@ class Agent:
         """Habit proposal ``pi(s)``: state ``[E, 6 + extra] -> [E,2]`` degrees (no noise)."""
         s = self._check("state", state, self.state_dim)
         actor = self.target_actor if self.cfg.act_with_target_actor else self.actor
-        return self.to_action(actor(self._pos(s)[:, None])[:, 0], s)
+        return self.to_action(actor(self._state(s)[:, None])[:, 0], s)
 
     @torch.no_grad()
     def inverse_action(self, state: torch.Tensor) -> torch.Tensor:
-        """Planning proposal from the state's positions ``[end, elbow, target]`` (``POSITIONS``):
+        """Planning proposal: the inverse model with the target as the hand's goal, from the state's positions
+        ``[end, elbow, target]`` (``POSITIONS``) and its extra entries (the joint velocities, where observed):
         ``[E, 6 + extra] -> [E,2]`` degrees (no noise)."""
         s = self._check("state", state, self.state_dim)
-        return self.to_action(self.inverse_model(self._pos(s[:, POSITIONS])[:, None])[:, 0], s)
+        return self.to_action(self.inverse_model(self._plan_input(self._state(s))[:, None])[:, 0], s)
+
+    def _plan_input(self, x: torch.Tensor) -> torch.Tensor:
+        """The inverse model's input at action time: the target in the place of the next hand position."""
+        return x[..., POSITIONS] if not self.sizes.extra_dim else self._inverse_input(x, x[..., TARGET])
 
     @torch.no_grad()
-    def predict_arm(self, arm: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
-        """Forward model: ``[end, elbow]`` ``[E,4]`` + action ``[E,2]`` -> next ``[end, elbow]`` ``[E,4]``."""
-        x = torch.cat([self._pos(self._check("arm", arm, 4)), self._act(self._check("action", action, self.action_dim))],
-                      -1)
-        return self.forward_model(x[:, None])[:, 0]
+    def predict_arm(self, state: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        """Forward model: state ``[E, 6 + extra]`` (it reads the arm ``[end, elbow]`` and the extra entries, e.g.
+        joint velocities) + action ``[E,2]`` -> next ``[end, elbow]`` ``[E,4]`` (cm)."""
+        x = self._state(self._check("state", state, self.state_dim))
+        a = self._act(self._check("action", action, self.action_dim))
+        return self.forward_model(torch.cat([*self._motion(x), a], -1)[:, None])[:, 0, ARM]
 
     @torch.no_grad()
     def td_error(self, s: torch.Tensor, a: torch.Tensor, r: torch.Tensor, s2: torch.Tensor,
@@ -175,11 +210,11 @@ class Agent:
         a = self._check("a", a, self.action_dim)[:, None]
         r, done = self._check("r", torch.as_tensor(r)[:, None], 1), self._check("done", torch.as_tensor(done)[:, None], 1)
         y = self._target(r, s2, done)
-        return (y - self.critic(self._pos(s), self._act(a)))[:, 0]
+        return (y - self.critic(self._state(s), self._act(a)))[:, 0]
 
     def _target(self, r: torch.Tensor, s2: torch.Tensor, done: torch.Tensor) -> torch.Tensor:
         """TD target ``r + gamma (1 - done) Q'(s2, pi'(s2))``; ``[E,B]`` (s2 raw cm)."""
-        x2 = self._pos(s2)
+        x2 = self._state(s2)
         with self._precision("actor"):
             a2 = self.to_action(self.target_actor(x2).float(), s2)
         with self._precision("critic"):
@@ -234,7 +269,7 @@ class Agent:
         s, a, s2 = b["state"], b["action"], b["next_state"]
         with torch.no_grad():
             y = self._target(b["reward"], s2, b["done"])
-        x = self._pos(s)
+        x = self._state(s)
         with self._precision("critic"):
             q = self.critic(x, self._act(a)).float()
         with self._precision("actor"):
@@ -244,20 +279,30 @@ class Agent:
             actor_loss = -self.critic(x, self._act(pi), detach=True).float().mean(1)
         if cfg.habit_distillation_weight > 0:  # kinds that arbitrate only (apac_mj.kinds.check)
             with torch.no_grad(), self._precision("inverse_model"):
-                plan = self.to_action(self.inverse_model(x[..., POSITIONS]).float(), s)
+                plan = self.to_action(self.inverse_model(self._plan_input(x)).float(), s)
             distance = ((pi - plan) / cfg.action_scale).pow(2).sum(-1).mean(1)
             actor_loss = actor_loss + cfg.habit_distillation_weight * distance
         if cfg.feasibility_weight > 0:
             excess = (pi - self.executable(pi, s)) / cfg.action_scale
             actor_loss = actor_loss + cfg.feasibility_weight * excess.pow(2).sum(-1).mean(1)
         with self._precision("forward_model"):
-            arm_next = self.forward_model(torch.cat([x[..., ARM], self._act(a)], -1)).float()
+            arm_next = self.forward_model(torch.cat([*self._motion(x), self._act(a)], -1)).float()
         with self._precision("inverse_model"):
-            u_inv = self.inverse_model(torch.cat([x[..., ARM], self._pos(s2[..., END])], -1)).float()
+            u_inv = self.inverse_model(self._inverse_input(x, self._pos(s2[..., END]))).float()
         return {"critic": (y - q).pow(2).mean(1),
                 "actor": actor_loss,
-                "forward": (arm_next - s2[..., ARM]).pow(2).mean((1, 2)),
+                "forward": self._forward_error(arm_next, s2).pow(2).mean((1, 2)),
                 "inverse": (self.to_action(u_inv, s) - b["executed_action"]).pow(2).mean((1, 2))}
+
+    def _forward_error(self, y: torch.Tensor, s2: torch.Tensor) -> torch.Tensor:
+        """The forward model's error per output ``[E,B,4 + extra]``: the arm in cm; each extra entry normalized
+        by its scale and weighed as half the plane's width (cm), so an error of one scale (500 deg/s) counts
+        as much as half the plane."""
+        err = y[..., ARM] - s2[..., ARM]
+        if not self.sizes.extra_dim:
+            return err
+        half = self.plane_scale / 2
+        return torch.cat([err, (self._forward_extra(y) - s2[..., EXTRA] / self.extra_scale) * half], -1)
 
     @torch.no_grad()
     def _soft_update(self, members: list[int]) -> None:

@@ -145,11 +145,15 @@ def build_critic(hidden: Sequence[int], gens: Sequence[torch.Generator], form: s
 
 
 def build_forward_model(hidden: Sequence[int], scale: float, gens: Sequence[torch.Generator],
-                        action_dim: int = 2) -> EnsembleMLP:
-    """Forward model: [end, elbow] (4) + action (2) -> sigmoid -> sigmoid -> 4 x sigmoid x scale (cm)."""
-    return EnsembleMLP([4 + action_dim, *hidden, 4], "sigmoid", "sigmoid", scale, gens)
+                        action_dim: int = 2, extra_dim: int = 0) -> EnsembleMLP:
+    """Forward model: [end, elbow] (4) + extra (the task's extra observations, e.g. joint velocities; none on
+    the paper's tasks) + action (2) -> sigmoid -> sigmoid -> (4 + extra) x sigmoid x scale: the next arm (cm)
+    and, where observed, the next extra entries (the agent maps them back, ``Agent._forward_extra``)."""
+    return EnsembleMLP([4 + extra_dim + action_dim, *hidden, 4 + extra_dim], "sigmoid", "sigmoid", scale, gens)
 
 
-def build_inverse_model(hidden: Sequence[int], gens: Sequence[torch.Generator], action_dim: int = 2) -> EnsembleMLP:
-    """Inverse model: [end_t, elbow_t, end_{t+1}] (6) -> relu -> relu -> action (2) x tanh, in [-1, 1]."""
-    return EnsembleMLP([6, *hidden, action_dim], "relu", "tanh", 1.0, gens)
+def build_inverse_model(hidden: Sequence[int], gens: Sequence[torch.Generator], action_dim: int = 2,
+                        extra_dim: int = 0) -> EnsembleMLP:
+    """Inverse model: [end_t, elbow_t, extra_t, end_{t+1}] (6 + extra; the paper's 6) -> relu -> relu ->
+    action (2) x tanh, in [-1, 1]."""
+    return EnsembleMLP([6 + extra_dim, *hidden, action_dim], "relu", "tanh", 1.0, gens)

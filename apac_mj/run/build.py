@@ -76,6 +76,10 @@ def check(cfg: TrainConfig) -> TaskSpec:
     if spec.plant.dynamic and cfg.actuation != "servo":
         raise ValueError(f"task {cfg.task!r} has a {spec.plant.actuation} plant ([plant]); actuation "
                          f"{cfg.actuation!r} would write the joint angles and skip its dynamics: use 'servo'")
+    if cfg.agent.executed_action == "joint_change" and spec.plant.actuation == "torque":
+        raise ValueError(f"task {cfg.task!r} is torque-driven: its actions are torques, not joint-angle "
+                         "changes; agent.executed_action must be 'command' or 'auto' (a torque run written before the "
+                         "internal models read the joint velocities cannot be resumed or evaluated: train it anew)")
     check_device(cfg.device)
     _check_memory(cfg)
     return spec

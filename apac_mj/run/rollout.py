@@ -177,7 +177,7 @@ class EpisodeState:
         state = self.state
 
         def predict_end(action: torch.Tensor) -> torch.Tensor:
-            return agent.predict_arm(state[:, ARM], agent.executable(action, state))[:, END]
+            return agent.predict_arm(state, agent.executable(action, state))[:, END]
 
         # copies (torch.tensor), not views of the carried arrays: a context kept by a rule stays as it was
         return ArbitrationContext(episode=torch.tensor(episode), step=torch.tensor(self.step),
@@ -364,7 +364,7 @@ def agent_step(agent: Policy, vec_env: VecEnv, integrator: Integrator, state: to
     """
     device = state.device
     executable = agent.executable(action, state)  # what the plant will do: every network sees this action
-    predicted = agent.predict_arm(state[:, ARM], executable)
+    predicted = agent.predict_arm(state, executable)
     obs = vec_env.step(action.detach().cpu().double().numpy(), active)
     seen, vision, seen_reward, reached, active_t = _observed_step(obs, active, device)
     if vec_env.extra.shape[1]:  # the integrator estimates the positions; the extra observations (proprioception)

@@ -214,9 +214,10 @@ class Trainer:
         angles_before = self.run.env.joint_angles()
         info = episodes.act(st, active, st.episode, explore=True, override=override)
         s, s2, r, done = _transition(info, babbling)
-        dev = agent.device
-        if agent.sizes.angle_actions:
-            executed = torch.as_tensor(info.joint_angles - angles_before, dtype=torch.float32, device=dev)
+        if executed_is_joint_change(self.cfg.agent, self.spec):
+            executed = torch.as_tensor(info.joint_angles - angles_before, dtype=torch.float32, device=agent.device)
+        elif agent.sizes.angle_actions:  # the set-point change the servos received (the plant clips it alike)
+            executed = agent.executable(info.tensors.action, s)
         else:  # torques: the plant applies the command as it is (select_action bounds it)
             executed = info.tensors.action
         learned = executed if self.cfg.agent.critic_action == "executed" else info.tensors.action
@@ -404,3 +405,11 @@ def _to_device(obj: Any, device: torch.device) -> Any:
     if isinstance(obj, list):
         return [_to_device(v, device) for v in obj]
     return obj
+
+
+def executed_is_joint_change(agent: AgentConfig, spec: TaskSpec) -> bool:
+    """The executed action is the arm's measured joint-angle change (``AgentConfig.executed_action``; "auto":
+    on the ideal plant, whose servos reach every command within the step), else the command as received."""
+    if agent.executed_action == "auto":
+        return not spec.plant.dynamic
+    return agent.executed_action == "joint_change"

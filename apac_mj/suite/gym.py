@@ -41,7 +41,9 @@ Further:
 * a task with dynamics (``[plant]``): under torque actuation the action is the joint torques,
   ``u`` in ``[-1, 1]`` scaled by ``max_torque`` (``"feasible"``) or the torques in N·m in
   ``[-max_torque, max_torque]`` (``"degrees"``, the raw command); a task that observes the joint
-  velocities (``observe_velocities``) appends them (deg/s, unscaled, unbounded): 8-D.
+  velocities (``observe_velocities``) appends them, 8-D: divided by the plant's ``velocity_scale``
+  (500 deg/s) under ``"normalized"`` (order 1, as the agent's networks read them; SB3 SAC with its
+  defaults: 1% of the grid with raw deg/s, docs/gym.md), in deg/s under ``"cm"``; unbounded either way.
 * reward: minus the distance to the target (cm), in either parameterization.
 * ``terminated``: the end effector is inside the target zone; ``truncated``: the task's step
   limit (30 steps) was hit; ``env.spec.max_episode_steps`` is that limit (``gym.make`` adds its
@@ -109,7 +111,9 @@ class PlanarArmEnv(gymnasium.Env):
         self._scale = np.tile(centre, 3) if observation == "normalized" else np.ones(6)
         high = (observation_bound_cm(self.task_spec) - self._shift) / self._scale
         low = (-observation_bound_cm(self.task_spec, low=True) - self._shift) / self._scale
-        if self.task_spec.plant.observe_velocities:  # joint velocities (deg/s), appended unscaled
+        #: The joint velocities' divisor: the plant's velocity_scale (deg/s) when normalized, else 1 (deg/s).
+        self._velocity_scale = self.task_spec.plant.velocity_scale if observation == "normalized" else 1.0
+        if self.task_spec.plant.observe_velocities:  # joint velocities, appended (unbounded)
             high, low = np.concatenate([high, np.full(2, np.inf)]), np.concatenate([low, np.full(2, -np.inf)])
         self.observation_space = spaces.Box(low.astype(np.float32), high.astype(np.float32), dtype=np.float32)
         self._torque = self.task_spec.plant.actuation == "torque"
@@ -183,7 +187,7 @@ class PlanarArmEnv(gymnasium.Env):
 
     def _observe(self, obs: dict[str, np.ndarray]) -> np.ndarray:
         cm = np.concatenate([obs["end_effector"], obs["elbow"], obs["target"]])
-        extra = [obs["joint_velocities"]] if "joint_velocities" in obs else []
+        extra = [obs["joint_velocities"] / self._velocity_scale] if "joint_velocities" in obs else []
         return np.concatenate([(cm - self._shift) / self._scale, *extra]).astype(np.float32)
 
     def _info(self, obs: dict[str, np.ndarray]) -> dict[str, Any]:

@@ -454,6 +454,18 @@ class Reach(base.Task):
         self.step_count += 1
         self._draw_view(first=False)
 
+    def observation_spec(self, physics: Physics) -> collections.OrderedDict:
+        """The observations' specs: arrays as dm_control infers them, the joint velocities (if observed) a
+        bounded array whose bound is the plant's ``velocity_scale`` (deg/s), the scale the agent reads them by."""
+        obs = self.get_observation(physics)
+        spec = collections.OrderedDict((k, specs.Array(np.shape(v), np.asarray(v).dtype, name=k))
+                                       for k, v in obs.items())
+        if "joint_velocities" in spec:
+            scale = self.spec.plant.velocity_scale
+            spec["joint_velocities"] = specs.BoundedArray(spec["joint_velocities"].shape, np.float64, -scale,
+                                                          scale, name="joint_velocities")
+        return spec
+
     def get_observation(self, physics: Physics) -> collections.OrderedDict:
         seen, noise = self._seen, self._noise
         obs = collections.OrderedDict()

@@ -116,6 +116,11 @@ class PlantSpec:
     #: Observe the joint velocities (deg/s, observation ``joint_velocities``) beside the positions, as
     #: dm_control's reacher does.
     observe_velocities: bool = False
+    #: The joint speed (deg/s) the observed velocities are scaled by: their observation spec's bound, which the
+    #: agent's networks and the Gym adapter's ``observation="normalized"`` divide them by (order 1, as the
+    #: positions). Not a limit: the arm may move faster. 500 deg/s is about the 95th percentile of the joint
+    #: speeds under uniform random actions on the torque and compliant arms (docs/environment.md).
+    velocity_scale: float = 500.0
 
     @property
     def dynamic(self) -> bool:
@@ -154,7 +159,7 @@ PLANT_UNITS = {"stiffness": "N·m/rad", "damping": "N·m·s/rad", "control_inter
                "max_torque": "N·m", "link_masses": "kg", "link_inertias": "kg·m^2 (0: uniform rod)",
                "joint_damping": "N·m·s/rad", "load": "kg", "load_change_episode": "episode (-1: never)",
                "load_after": "kg", "field_b": "N·s/m", "field_on_episode": "episode (-1: never)",
-               "field_off_episode": "episode (-1: never)"}
+               "field_off_episode": "episode (-1: never)", "velocity_scale": "deg/s"}
 #: Where each default comes from (``apac-mj tasks --show``; docs/environment.md has the full references).
 PLANT_SOURCES = {
     "stiffness": "diagonal of K = [[15, 6], [6, 16]], Shadmehr & Mussa-Ivaldi 1994",
@@ -162,7 +167,9 @@ PLANT_SOURCES = {
     "control_interval": "design: ~100 ms visuomotor loop", "timestep": "design: 50 sub-steps per step",
     "max_torque": "design: 3x the unloaded arm's gravity torque", "link_masses":
         "human arm: Shadmehr & Mussa-Ivaldi 1994; Selen, Franklin & Wolpert 2009, Table 1",
-    "gravity": "9.81 m/s^2 along -y", "field_b": "F = B v, B = [[0, b], [-b, 0]], Shadmehr & Mussa-Ivaldi 1994",
+    "gravity": "9.81 m/s^2 along -y",
+    "velocity_scale": "design: ~95th percentile of joint speeds under random actions; networks read v / scale",
+    "field_b": "F = B v, B = [[0, b], [-b, 0]], Shadmehr & Mussa-Ivaldi 1994",
 }
 _PLANT_PAIRS = {"stiffness", "damping", "link_masses", "link_inertias", "joint_damping"}
 _PLANT_INTS = {"load_change_episode", "field_on_episode", "field_off_episode"}
@@ -226,7 +233,7 @@ def check_plant(plant: PlantSpec) -> None:
         for v in getattr(plant, name):
             if not math.isfinite(v) or v < 0:
                 raise TaskSpecError(f"plant.{name} must be finite numbers >= 0, got {getattr(plant, name)}")
-    for name in ("control_interval", "timestep", "max_torque"):
+    for name in ("control_interval", "timestep", "max_torque", "velocity_scale"):
         v = getattr(plant, name)
         if not math.isfinite(v) or v <= 0:
             raise TaskSpecError(f"plant.{name} must be a positive finite number, got {v!r}")
