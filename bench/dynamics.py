@@ -25,7 +25,7 @@ Windows (training episodes; on/off/change: the task's schedule, N: the episodes 
 * torque-driven arm (no event): ``late`` N-10..N-1. Every condition: ``last 30`` N-30..N-1.
 
 Frozen probes (``--history``, a folder of per-cell checkpoint copies ``<cell>/*.pt``): every seed of every agent as
-it was after 110 (the event), 130 (curl: the field goes off) and N training episodes, tested on the same 100 grid
+it was after 110 (the event), 130 (curl: the field goes off) or 140 (load: 30 episodes with it) and N training episodes, tested on the same 100 grid
 targets with the field / load off and on. The seeds train side by side and drift apart by a few episodes, and a
 checkpoint is written when the slowest reaches a multiple of checkpoint_every: each seed is probed in the checkpoint
 where it had trained the most episodes not past the moment (its episode there is listed as ``seed_episode``).
@@ -245,11 +245,18 @@ PROBE_SETTINGS = {CURL: {"off": {"field_b": 0.0, "field_on_episode": -1, "field_
                          "on": {"load": 1.0, "load_change_episode": -1, "load_after": 0.0}}}
 
 
+#: Training episodes after the load change at which the agent is probed for its recovery (issue 27: back within 10
+#: points of its pre-load test success within 30 episodes?).
+RECOVERY_EPISODES = 30
+
+
 def probe_moments(cond: str, schedule: dict[str, int], episodes: int) -> list[int]:
-    """The slowest seed's training episodes at which the agent is probed: the event, the field's switch-off, the end."""
+    """The slowest seed's training episodes at which the agent is probed: the event, the field's switch-off (curl)
+    or :data:`RECOVERY_EPISODES` after the load change (load), the end."""
+    change = schedule.get("load_change_episode", -1)
     events = [schedule["field_on_episode"], schedule["field_off_episode"]] if cond == CURL \
-        else [schedule["load_change_episode"]]
-    return sorted({e for e in events if e >= 0} | {episodes})
+        else [change, change + RECOVERY_EPISODES if change >= 0 else -1]
+    return sorted({e for e in events if 0 <= e <= episodes} | {episodes})
 
 
 def frozen_test(cell: Path, checkpoint: Path, plant_changes: dict[str, Any], limit: int | None = None,
@@ -258,7 +265,7 @@ def frozen_test(cell: Path, checkpoint: Path, plant_changes: dict[str, Any], lim
     (its own link lengths; the first ``limit`` only if given), with the
     task's plant changed by ``plant_changes``: per seed its episode at the checkpoint, success, relative error
     (mean hand-target distance over the path / the target's distance from the start pose), final distance,
-    steps and habit share."""
+    steps, habit share and the first step's signed lateral deviation (:func:`lateral_deviation`)."""
     import dataclasses
 
     import torch
@@ -294,8 +301,24 @@ def frozen_test(cell: Path, checkpoint: Path, plant_changes: dict[str, Any], lim
                     "successes": int(r.success.sum()), "success": float(r.success.mean()),
                     "relative_error": float(np.mean(np.asarray(path_error) / start_distance)),
                     "final_distance_cm": float(r.final_distance.mean()), "steps": float(r.steps.mean()),
-                    "habit_share": float(r.habit_actions.sum() / max(1, acts))})
+                    "habit_share": float(r.habit_actions.sum() / max(1, acts)),
+                    "lateral_cm": float(np.mean([lateral_deviation(px, py, tx, ty) for px, py, tx, ty in
+                                                 zip(r.path_x, r.path_y, r.target_x, r.target_y)]))})
     return out
+
+
+def lateral_deviation(path_x: Any, path_y: Any, target_x: float, target_y: float) -> float:
+    """The hand's signed deviation (cm) from the straight line to the target after the first step: positive to the
+    left of the line (counter-clockwise), negative to the right. The curl field (b > 0) turns its force clockwise
+    from the hand's velocity, so it pushes the first movement to the right (negative); an internal model adapted
+    to it pushes left, and with the field off again the after-effect shows as a deviation to the left (positive)
+    of the one before the field. NaN for a path of less than two points."""
+    px, py = np.asarray(path_x, dtype=float), np.asarray(path_y, dtype=float)
+    if len(px) < 2:
+        return float("nan")
+    u = np.array([target_x - px[0], target_y - py[0]])
+    u /= max(np.linalg.norm(u), 1e-12)
+    return float((px[1] - px[0]) * -u[1] + (py[1] - py[0]) * u[0])
 
 
 def saved_checkpoints(cell: Path, history: Path) -> dict[Path, list[int]]:
@@ -377,7 +400,8 @@ def probe_effects(pr: pd.DataFrame, moments: dict[str, list[int]]) -> pd.DataFra
     cost after the field = on - off at 130, after-effect = off at 130 - off at 110. Load: cost at the change =
     on - off at 110, cost at the end = on - off at N, loaded: on at N - on at 110, unloaded: off at N - off at
     110 (the load's after-effect and the learning in between)."""
-    quantities = ["success", "relative_error", "final_distance_cm", "steps"]
+    quantities = [q for q in ("success", "relative_error", "final_distance_cm", "steps", "lateral_cm")
+                  if q in pr.columns]
     out = []
     for (agent, cond, seed), d in pr.groupby(["agent", "condition", "seed"]):
         v = {(int(r.after_episode), r.plant): r for r in d.itertuples()}
@@ -388,7 +412,10 @@ def probe_effects(pr: pd.DataFrame, moments: dict[str, list[int]]) -> pd.DataFra
                      "cost after the field (on - off)": ((mid, "on"), (mid, "off")),
                      "after-effect (off: switch-off - event)": ((mid, "off"), (first, "off"))}
         else:
+            recovery = first + RECOVERY_EPISODES
             pairs = {"cost at the change (on - off)": ((first, "on"), (first, "off")),
+                     f"recovery: loaded {RECOVERY_EPISODES} episodes later - unloaded at the change":
+                         ((recovery, "on"), (first, "off")),
                      "cost at the end (on - off)": ((last, "on"), (last, "off")),
                      "loaded: end - change": ((last, "on"), (first, "on")),
                      "unloaded: end - change": ((last, "off"), (first, "off"))}
@@ -549,14 +576,16 @@ def main() -> None:
         pr = probes(args.grid, args.history, cache, info, args.probe_targets)
         section("frozen probes per seed", pr, args.out / "probes.csv")
         if len(pr):
-            quantities = ["success", "relative_error", "final_distance_cm", "steps", "habit_share"]
+            quantities = [q for q in ("success", "relative_error", "final_distance_cm", "steps", "habit_share",
+                                      "lateral_cm") if q in pr.columns]
             section("frozen probes over seeds", summarize(pr, ["agent", "condition", "after_episode", "plant"],
                                                           quantities, {"success": ("successes", "targets")}),
                     args.out / "probe_summary.csv")
             pe = probe_effects(pr, {c: probe_moments(c, v["schedule"], v["episodes"]) for (a, c), v in info.items()
                                     if c in PROBE_SETTINGS})
             section("frozen-probe effects (per seed, then over seeds)",
-                    summarize(pe, ["agent", "condition", "effect", "between"], quantities[:4])
+                    summarize(pe, ["agent", "condition", "effect", "between"],
+                              [q for q in quantities if q != "habit_share"])
                     if len(pe) else pe, args.out / "probe_effects.csv")
     print("\ntrained up to (slowest seed):",
           {f"{a}__{c}": int(d.groupby("seed").episode.max().min())

@@ -113,3 +113,28 @@ def test_each_member_is_probed_at_its_own_checkpoint_not_past_the_moment(dyn):
     assert dyn.member_checkpoints({Path("a.pt"): [100, 107, 101], Path("b.pt"): [110, 118, 112]}, 130) == {}
     assert dyn.member_checkpoints({Path("a.pt"): [100, 107, 101], Path("b.pt"): [110, 118, 112]}, 115) == {
         1: Path("a.pt")}  # only member 1 has trained past 115
+
+
+def test_the_load_is_probed_at_the_change_thirty_episodes_later_and_at_the_end(dyn):
+    load = {"load_change_episode": 110}
+    assert dyn.probe_moments(dyn.LOAD, load, 200) == [110, 140, 200]
+    assert dyn.probe_moments(dyn.LOAD, load, 120) == [110, 120]  # not trained that far: no recovery probe yet
+    curl = {"field_on_episode": 110, "field_off_episode": 130}
+    assert dyn.probe_moments(dyn.CURL, curl, 200) == [110, 130, 200]
+    rows = [{"agent": "spac", "condition": dyn.LOAD, "seed": 0, "after_episode": e, "plant": p,
+             "success": s, "relative_error": 0.0, "final_distance_cm": 0.0, "steps": 5.0}
+            for e, p, s in ((110, "off", 0.9), (110, "on", 0.6), (140, "on", 0.85), (140, "off", 0.9),
+                            (200, "on", 0.9), (200, "off", 0.9))]
+    effects = dyn.probe_effects(pd.DataFrame(rows), {dyn.LOAD: [110, 140, 200]}).set_index("effect")
+    recovery = effects.loc["recovery: loaded 30 episodes later - unloaded at the change"]
+    assert recovery["between"] == "140on-110off" and recovery["success"] == pytest.approx(-0.05)
+    assert effects.loc["cost at the change (on - off)"].success == pytest.approx(-0.3)
+
+
+def test_the_lateral_deviation_is_signed_left_positive(dyn):
+    # moving along +x towards (10, 0): a first step to (1, 0.5) is 0.5 cm left of the line, to (1, -0.5) right
+    assert dyn.lateral_deviation([0, 1], [0, 0.5], 10, 0) == pytest.approx(0.5)
+    assert dyn.lateral_deviation([0, 1, 5], [0, -0.5, 0], 10, 0) == pytest.approx(-0.5)
+    # moving along +y: left is -x
+    assert dyn.lateral_deviation([2, 1.7], [2, 3], 2, 12) == pytest.approx(0.3)
+    assert np.isnan(dyn.lateral_deviation([0], [0], 1, 1))
