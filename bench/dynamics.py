@@ -354,14 +354,14 @@ def member_checkpoints(saved: dict[Path, list[int]], moment: int) -> dict[int, P
 
 
 def probes(grid: Path, history: Path, cache: Path, info: dict[tuple[str, str], dict[str, Any]],
-           limit: int | None = None) -> pd.DataFrame:
+           limit: int | None = None, agents: list[str] | None = None, cached_only: bool = False) -> pd.DataFrame:
     """Per agent, condition, probe moment, plant setting (field / load off, on) and seed: :func:`frozen_test` of
     the seed's checkpoint at the moment (:func:`member_checkpoints`; ``limit``: the first targets only). Results
     are cached per checkpoint, setting and seed in ``cache/<cell>/<checkpoint>_<setting>[_<limit>targets].json``
     (a probe of 3 seeds x 100 targets costs ~30 s of CPU)."""
     out = []
     for (agent, cond), cell in cell_dirs(grid).items():
-        if cond not in PROBE_SETTINGS or (agent, cond) not in info:
+        if cond not in PROBE_SETTINGS or (agent, cond) not in info or (agents and agent not in agents):
             continue
         saved = saved_checkpoints(cell, history)
         for moment in probe_moments(cond, info[(agent, cond)]["schedule"], info[(agent, cond)]["episodes"]):
@@ -371,7 +371,7 @@ def probes(grid: Path, history: Path, cache: Path, info: dict[tuple[str, str], d
                 by_checkpoint.setdefault(path, []).append(k)
             for path, members in by_checkpoint.items():
                 for setting, changes in PROBE_SETTINGS[cond].items():
-                    result = _cached_probe(cell, path, members, setting, changes, cache, limit)
+                    result = _cached_probe(cell, path, members, setting, changes, cache, limit, cached_only)
                     out += [{"agent": agent, "condition": cond, "after_episode": moment, "plant": setting, **r}
                             for r in result]
     return pd.DataFrame(out).sort_values(["agent", "condition", "after_episode", "plant", "seed"]) if out \
@@ -379,12 +379,14 @@ def probes(grid: Path, history: Path, cache: Path, info: dict[tuple[str, str], d
 
 
 def _cached_probe(cell: Path, checkpoint: Path, members: list[int], setting: str, changes: dict[str, Any],
-                  cache: Path, limit: int | None) -> list[dict[str, Any]]:
+                  cache: Path, limit: int | None, cached_only: bool = False) -> list[dict[str, Any]]:
     """:func:`frozen_test` of ``members`` of ``checkpoint``, from the cache where it has them."""
     stem = "final" if checkpoint.parent.name == "checkpoints" else checkpoint.stem
     path = cache / cell.name / f"{stem}_{setting}{f'_{limit}targets' if limit else ''}.json"
     have = {int(k): v for k, v in json.loads(path.read_text()).items()} if path.is_file() else {}
     todo = [k for k in members if k not in have]
+    if todo and cached_only:
+        return [have[k] for k in members if k in have]
     if todo:
         print(f"probe {cell.name} {checkpoint.name} members {todo}, {setting}", flush=True)
         for k, r in zip(todo, frozen_test(cell, checkpoint, changes, limit, todo)):
@@ -542,6 +544,10 @@ def main() -> None:
                     help="folder for the probes' results (default: <history>_probes next to --history)")
     ap.add_argument("--probe-targets", type=int, default=None,
                     help="probe on the first N of the 100 grid targets only (a quick look; default: all)")
+    ap.add_argument("--probe-agents", type=lambda s: s.split(","), default=None,
+                    help="probe only these agent kinds (comma-separated; default: every one)")
+    ap.add_argument("--cached-probes-only", action="store_true",
+                    help="report the probes already in --probe-cache, run none (a probe of 5 seeds costs minutes)")
     args = ap.parse_args()
     rows, test, info = load_grid(args.grid)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -573,7 +579,8 @@ def main() -> None:
     figure(rows, tests, info, args.out / "fig_dynamics.png")
     if args.history is not None:
         cache = args.probe_cache or args.history.parent / f"{args.history.name}_probes"
-        pr = probes(args.grid, args.history, cache, info, args.probe_targets)
+        pr = probes(args.grid, args.history, cache, info, args.probe_targets, args.probe_agents,
+                    args.cached_probes_only)
         section("frozen probes per seed", pr, args.out / "probes.csv")
         if len(pr):
             quantities = [q for q in ("success", "relative_error", "final_distance_cm", "steps", "habit_share",
