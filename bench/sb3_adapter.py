@@ -262,14 +262,7 @@ def main_steps(args) -> None:
         else [args.steps]
     if eval_at[0] <= 0 or eval_at[-1] > args.steps:
         raise SystemExit(f"--eval-at must lie in 1..--steps ({args.steps}), got {args.eval_at}")
-    done = set()
-    if args.out is not None and args.out.exists():
-        with args.out.open() as f:
-            reader = csv.DictReader(f)
-            if tuple(reader.fieldnames or ()) != STEP_FIELDS:
-                raise SystemExit(f"{args.out} has another layout (fields {reader.fieldnames}); the step-budget "
-                                 f"mode writes {STEP_FIELDS}: use another --out")
-            done = {tuple(r[k] for k in STEP_FIELDS[:8]) for r in reader}
+    done = finished_rows(args.out, STEP_FIELDS, 8, "step-budget")
     print(" | ".join(STEP_FIELDS), flush=True)
     written: list[dict] = []
 
@@ -335,14 +328,7 @@ def main(argv: list[str] | None = None) -> None:
     if args.steps is not None:
         main_steps(args)
         return
-    done = set()
-    if args.out is not None and args.out.exists():
-        with args.out.open() as f:
-            reader = csv.DictReader(f)
-            if tuple(reader.fieldnames or ()) != FIELDS:
-                raise SystemExit(f"{args.out} has another layout (fields {reader.fieldnames}); the episode mode "
-                                 f"writes {FIELDS}: use another --out")
-            done = {tuple(r[k] for k in FIELDS[:7]) for r in reader}
+    done = finished_rows(args.out, FIELDS, 7, "episode")
     print(" | ".join(FIELDS), flush=True)
     for task in args.tasks:
         for algo in args.algos:
@@ -361,6 +347,18 @@ def main(argv: list[str] | None = None) -> None:
                             if new:
                                 w.writeheader()
                             w.writerow(row)
+
+
+def finished_rows(out: Path | None, fields: tuple[str, ...], key: int, mode: str) -> set[tuple[str, ...]]:
+    """The keys (the first ``key`` fields) of the rows ``out`` already holds; a CSV of another layout is refused."""
+    if out is None or not out.exists():
+        return set()
+    with out.open() as f:
+        reader = csv.DictReader(f)
+        if tuple(reader.fieldnames or ()) != fields:
+            raise SystemExit(f"{out} has another layout (fields {reader.fieldnames}); the {mode} mode writes "
+                             f"{fields}: use another --out")
+        return {tuple(r[k] for k in fields[:key]) for r in reader}
 
 
 def markdown(path: Path, only: list[dict] | None = None) -> str:

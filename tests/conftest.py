@@ -21,3 +21,15 @@ def nets(*hidden: int) -> dict[str, tuple[int, ...]]:
 TINY = dict(nets(16, 16), batch_size=8, replay_size=64, babbling_episodes=1, planning_episodes=2)
 #: Tinier, for runs over every task and kind: 8-unit networks, one planning episode (test_build, test_state_layout).
 TINY8 = dict(nets(8, 8), batch_size=4, replay_size=50, babbling_episodes=1, planning_episodes=1)
+
+
+def bench_module(name: str):
+    """``bench/<name>.py`` loaded as a module (bench/ is scripts, not a package)."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "bench" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(f"bench_{name}", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module

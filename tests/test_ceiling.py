@@ -4,23 +4,19 @@ arm's targets while the zero action reaches none, and the CLI's checks."""
 from __future__ import annotations
 
 import csv
-import importlib.util
 from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import bench_module
 
 from apac_mj.kinematics import motion_function
 
-SCRIPT = Path(__file__).resolve().parents[1] / "bench" / "ceiling.py"
 
 
 @pytest.fixture(scope="module")
 def ceil():
-    spec = importlib.util.spec_from_file_location("bench_ceiling", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return bench_module("ceiling")
 
 
 def _state(env) -> tuple[np.ndarray, ...]:

@@ -2,22 +2,18 @@
 per-seed effects (window differences), the recovery episode per seed, and the summary over seeds."""
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import bench_module
 
-SCRIPT = Path(__file__).resolve().parents[1] / "bench" / "dynamics.py"
 
 
 @pytest.fixture(scope="module")
 def dyn():
-    spec = importlib.util.spec_from_file_location("bench_dynamics", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return bench_module("dynamics")
 
 
 CURL_SCHEDULE = {"field_on_episode": 110, "field_off_episode": 130, "load_change_episode": -1}
