@@ -4,7 +4,6 @@ arm's targets while the zero action reaches none, and the CLI's checks."""
 from __future__ import annotations
 
 import csv
-from pathlib import Path
 
 import numpy as np
 import pytest
