@@ -137,7 +137,7 @@ class Sizes:
     #: The actions are joint-angle changes (degrees), which the joint range limits (:class:`Geometry`);
     #: False: other actions (torques), bounded only by ``action_bound``.
     angle_actions: bool = True
-    #: The scale of each extra entry (its observation spec's bound, e.g. 500 deg/s for joint velocities): the
+    #: The scale of each extra entry (the scale its observation spec carries, e.g. 500 deg/s for joint velocities): the
     #: networks read ``extra / extra_scale``, order 1 as the normalized positions. One per extra entry.
     extra_scale: tuple[float, ...] = ()
 
@@ -165,12 +165,12 @@ class Sizes:
         for name, s in list(observation_spec.items())[3:]:
             if name == "vision":
                 continue
-            bound = np.broadcast_to(getattr(s, "maximum", np.nan), s.shape).ravel().astype(float)
-            if not np.all(np.isfinite(bound)) or np.any(bound <= 0) or \
-                    not np.all(np.broadcast_to(getattr(s, "minimum", np.nan), s.shape).ravel() == -bound):
+            scale = getattr(s, "scale", None)  # suite.planar_arm.ScaledArray
+            if scale is None or not math.isfinite(scale) or scale <= 0:
                 raise ValueError(f"the agent reads every observation beyond the positions by its scale: "
-                                 f"{name!r} must be a bounded array with symmetric bounds (its scale), got {s}")
-            scales.extend(float(b) for b in bound)
+                                 f"{name!r} must be a spec with a positive scale (suite.planar_arm.ScaledArray), "
+                                 f"got {s}")
+            scales.extend([float(scale)] * int(np.prod(s.shape)))
         lo, hi = np.broadcast_to(action_spec.minimum, action_spec.shape), np.broadcast_to(action_spec.maximum,
                                                                                             action_spec.shape)
         if len(action_spec.shape) != 1 or not np.all(hi == -lo) or not np.all(hi == hi.flat[0]) or hi.flat[0] <= 0:

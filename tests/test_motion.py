@@ -126,3 +126,18 @@ def test_the_gym_adapter_scales_the_velocities_when_normalized():
     raw = envs["cm"]._env.physics.joint_velocities()
     assert np.allclose(obs["cm"][6:], raw, rtol=1e-5) and np.abs(raw).max() > 50  # deg/s
     assert np.allclose(obs["normalized"][6:], obs["cm"][6:] / 500.0, rtol=1e-5)
+
+
+def test_the_velocity_spec_carries_its_scale_and_bounds_nothing():
+    """dm_env checks observations against a bounded spec, and the arm may move faster than its scale."""
+    from apac_mj import suite
+    from apac_mj.suite.planar_arm import ScaledArray
+
+    env = suite.load("planar_arm", TORQUE, task_kwargs={"random": 0})
+    spec = env.observation_spec()["joint_velocities"]
+    assert isinstance(spec, ScaledArray) and spec.scale == 500.0
+    spec.validate(np.array([-545.0, 900.0]))  # beyond the scale: still a valid observation
+    assert Sizes.from_specs(env.observation_spec(), env.action_spec()).extra_scale == (500.0, 500.0)
+    import pickle
+
+    assert pickle.loads(pickle.dumps(spec)).scale == 500.0

@@ -302,6 +302,28 @@ def check_target(xy, plane_size: tuple[float, float]) -> np.ndarray:
     return xy
 
 
+class ScaledArray(specs.Array):
+    """An unbounded dm_env array spec that also carries ``scale``: the magnitude the agent's networks read as 1
+    (``kinematics.Sizes.from_specs``). A bound would be wrong: dm_env checks observations against it, and the arm
+    may move faster than its velocity scale."""
+
+    __slots__ = ("_scale",)
+
+    def __init__(self, shape, dtype, scale: float, name: str | None = None) -> None:
+        super().__init__(shape, dtype, name)
+        self._scale = float(scale)
+
+    @property
+    def scale(self) -> float:
+        return self._scale
+
+    def __repr__(self) -> str:
+        return f"ScaledArray(shape={self.shape}, dtype={self.dtype}, scale={self._scale}, name={self.name!r})"
+
+    def __reduce__(self):
+        return ScaledArray, (self._shape, self._dtype, self._scale, self._name)
+
+
 class Reach(base.Task):
     """Reach the target: reward = -distance, terminal inside the target zone.
 
@@ -432,7 +454,7 @@ class Reach(base.Task):
         return specs.BoundedArray((2,), np.float64, -bound, bound, name=name)
 
     def before_step(self, action, physics: Physics) -> None:
-        action = validate_action(action)
+        action = validate_action(action, torque=self.spec.plant.actuation == "torque")
         if self.growing:
             self._lengths = self._lengths + self.spec.growth_per_step
             physics.set_link_lengths(*self._lengths)
@@ -455,15 +477,15 @@ class Reach(base.Task):
         self._draw_view(first=False)
 
     def observation_spec(self, physics: Physics) -> collections.OrderedDict:
-        """The observations' specs: arrays as dm_control infers them, the joint velocities (if observed) a
-        bounded array whose bound is the plant's ``velocity_scale`` (deg/s), the scale the agent reads them by."""
+        """The observations' specs: arrays as dm_control infers them; the joint velocities (if observed) a
+        :class:`ScaledArray` carrying the plant's ``velocity_scale`` (deg/s), the scale the agent reads them by.
+        Unbounded: the arm may move faster than the scale."""
         obs = self.get_observation(physics)
         spec = collections.OrderedDict((k, specs.Array(np.shape(v), np.asarray(v).dtype, name=k))
                                        for k, v in obs.items())
         if "joint_velocities" in spec:
-            scale = self.spec.plant.velocity_scale
-            spec["joint_velocities"] = specs.BoundedArray(spec["joint_velocities"].shape, np.float64, -scale,
-                                                          scale, name="joint_velocities")
+            spec["joint_velocities"] = ScaledArray(spec["joint_velocities"].shape, np.float64,
+                                                   self.spec.plant.velocity_scale, name="joint_velocities")
         return spec
 
     def get_observation(self, physics: Physics) -> collections.OrderedDict:
@@ -514,11 +536,13 @@ class Reach(base.Task):
         self._noise = None if noise is None else np.asarray(noise, dtype=np.float64).reshape(6).copy()
 
 
-def validate_action(action) -> np.ndarray:
-    """A finite float array of shape (2,); raises ValueError naming the problem."""
+def validate_action(action, torque: bool = False) -> np.ndarray:
+    """A finite float array of shape (2,); raises ValueError naming the problem and what the action is: the
+    joint-angle changes in degrees, or (``torque``: torque actuation) the joint torques in N·m."""
     a = np.asarray(action, dtype=np.float64)
     if a.shape != (2,):
-        raise ValueError(f"action must have shape (2,) (shoulder, elbow change in degrees), got shape {a.shape}")
+        what = "shoulder, elbow torque in N·m" if torque else "shoulder, elbow change in degrees"
+        raise ValueError(f"action must have shape (2,) ({what}), got shape {a.shape}")
     if not np.all(np.isfinite(a)):
         raise ValueError(f"action must be finite, got {a.tolist()}")
     return a

@@ -116,8 +116,8 @@ class PlantSpec:
     #: Observe the joint velocities (deg/s, observation ``joint_velocities``) beside the positions, as
     #: dm_control's reacher does.
     observe_velocities: bool = False
-    #: The joint speed (deg/s) the observed velocities are scaled by: their observation spec's bound, which the
-    #: agent's networks and the Gym adapter's ``observation="normalized"`` divide them by (order 1, as the
+    #: The joint speed (deg/s) the observed velocities are scaled by: the scale their observation spec carries
+    #: (``planar_arm.ScaledArray``), which the agent's networks and the Gym adapter's ``observation="normalized"`` divide them by (order 1, as the
     #: positions). Not a limit: the arm may move faster. 500 deg/s is about the 95th percentile of the joint
     #: speeds under uniform random actions on the torque and compliant arms (docs/environment.md).
     velocity_scale: float = 500.0
