@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import errno
 import importlib
+import os
 import signal
 import sys
 
@@ -76,7 +77,34 @@ def os_error_message(e: OSError) -> str:
     return f"{e.strerror or e}: {file}" if e.filename is not None else str(e)
 
 
+#: Exit status when the reader of stdout goes away (``apac-mj tasks | head -2``): 128 + SIGPIPE, what a shell
+#: reports for a command SIGPIPE ended (``yes | head``), so that ``set -o pipefail`` still sees the output cut.
+EXIT_BROKEN_PIPE = 128 + 13
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run one command; its exit status. A reader of stdout that goes away ends it quietly (no message, no
+    traceback) with :data:`EXIT_BROKEN_PIPE`."""
+    try:
+        try:
+            return _main(argv)
+        finally:
+            sys.stdout.flush()  # here, not at exit, where a closed pipe would print "Exception ignored"
+    except BrokenPipeError:
+        _stdout_to_devnull()
+        return EXIT_BROKEN_PIPE
+
+
+def _stdout_to_devnull() -> None:
+    """Point stdout's file descriptor at /dev/null: what is still buffered is dropped at exit without an error
+    (the way the Python docs give for SIGPIPE)."""
+    try:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    except (OSError, ValueError):  # no file descriptor (stdout replaced, e.g. captured): nothing to redirect
+        pass
+
+
+def _main(argv: list[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command is None:  # bare `apac-mj`: what it can do
@@ -89,6 +117,8 @@ def main(argv: list[str] | None = None) -> int:
         terminated = isinstance(e, Terminated)
         print("terminated (SIGTERM)" if terminated else "interrupted", file=sys.stderr)
         return 128 + (signal.SIGTERM if terminated else signal.SIGINT)
+    except BrokenPipeError:
+        raise  # the reader of stdout went away: main() ends quietly
     except OSError as e:
         print(f"apac-mj {args.command}: error: {os_error_message(e)}", file=sys.stderr)
         return 2

@@ -138,6 +138,21 @@ def test_bad_parameterization_names_the_choices():
         apac_gym.PlanarArmEnv("static_target", observation="pixels")
 
 
+@pytest.mark.parametrize("task, action, words", [
+    ("changing_target", "degrees", "shoulder, elbow change in degrees"),
+    ("changing_target_torque", "degrees", "shoulder, elbow torque in N·m"),
+    ("changing_target", "feasible", "shoulder, elbow u in [-1, 1], mapped onto the feasible angle changes"),
+    ("changing_target_torque", "feasible", "shoulder, elbow u in [-1, 1], scaled to torques in N·m")])
+def test_wrong_action_shape_names_what_the_action_is(task, action, words):
+    """The refusal of an action of the wrong shape says what the action is in this task and parameterization
+    (it once said only '(shoulder, elbow)', whatever the units)."""
+    env = gymnasium.make(apac_gym.env_id(task), action=action)
+    env.reset(seed=0)
+    with pytest.raises(ValueError) as e:
+        env.step(np.zeros(3, dtype=np.float32))
+    assert str(e.value) == f"action must have shape (2,) ({words}), got shape (3,)"
+
+
 def test_occluded_observation_and_seeding():
     env = gymnasium.make("apac_mj/changing_target_occluded-v0", actuation="kinematic")
     first, info = env.reset(seed=5)

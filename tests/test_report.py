@@ -598,3 +598,58 @@ def test_several_results_directories_report_as_one(tmp_path, capsys) -> None:
     assert not (tmp_path / "dup").exists()
     assert main(["report", str(a), str(b)]) == 2
     assert "several results directories need --out" in capsys.readouterr().err
+
+
+def _drawn(draw, results: Path, tmp_path: Path, monkeypatch, table_edit=None):
+    """The figure ``draw`` (a figures.fig_* function) makes of ``results``, drawn and left open; ``table_edit``
+    changes the key-number table first."""
+    metrics, tests = load_results(results), load_tests(results)
+    seed_values = per_seed(metrics, tests)
+    table = key_numbers(seed_values)
+    if table_edit is not None:
+        table = table_edit(table)
+    closed = []
+    monkeypatch.setattr(figures.plt, "close", lambda fig: closed.append(fig))
+    draw(figures.ReportData(results, metrics, tests, seed_values, table), tmp_path / "figure.png")
+    closed[0].canvas.draw()
+    return closed[0]
+
+
+def test_fig4_shows_every_agents_reached_count(tmp_path, monkeypatch) -> None:
+    """Fig. 4 writes reached/tested under every bar, the middle agent's (SPAC's) too: its bar sits on the
+    condition's tick, where matplotlib drops a minor tick by default (4 of 12 counts were missing)."""
+    import matplotlib.text
+
+    results = make_results(tmp_path / "r", seeds=(0, 1), episodes=6)
+
+    def distinct(table: pd.DataFrame) -> pd.DataFrame:  # a count per bar that no other bar has
+        steps = table["quantity"] == "test_steps_to_reach"
+        return table.assign(samples=np.where(steps, 100 + np.arange(len(table)), table["samples"]))
+
+    fig = _drawn(figures.fig_test, results, tmp_path, monkeypatch, distinct)
+    texts = {t.get_text() for t in fig.findobj(matplotlib.text.Text) if t.get_visible()}
+    steps = distinct(key_numbers(per_seed(load_results(results), load_tests(results))))
+    steps = steps[steps["quantity"] == "test_steps_to_reach"]
+    assert set(steps["agent"]) == {"ddpg", "spac", "apac"} and len(steps) == 9
+    missing = [(r["agent"], r["condition"]) for _, r in steps.iterrows()
+               if f"{int(r['samples'])}/{int(r['samples_of'])}" not in texts]
+    assert not missing, f"counts not shown: {missing}"
+    figures.plt.close("all")
+
+
+def test_fig5_of_a_short_run_lays_out_without_warnings(tmp_path, monkeypatch) -> None:
+    """Fig. 5 of a run too short for any seed to turn habitual: constrained layout applies (no 'not applied'
+    warning; an empty unclipped line of crossing ticks once collapsed it) and the suptitle sits above every
+    panel's title."""
+    import warnings
+
+    results = make_results(tmp_path / "r", seeds=(0, 1), episodes=6)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        fig = _drawn(figures.fig_arbitration, results, tmp_path, monkeypatch)
+        fig.savefig(tmp_path / "again.png")
+    renderer = fig.canvas.get_renderer()
+    suptitle = fig._suptitle.get_window_extent(renderer)
+    titles = [ax.title.get_window_extent(renderer) for ax in fig.axes if ax.get_visible()]
+    assert len(titles) == 3 and all(t.y1 <= suptitle.y0 for t in titles)
+    figures.plt.close("all")

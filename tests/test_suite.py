@@ -137,6 +137,18 @@ def test_unknown_actuation_is_rejected():
         make(actuation="teleport")
 
 
+@pytest.mark.parametrize("task, words", [("changing_target", "(shoulder, elbow change in degrees)"),
+                                         ("changing_target_torque", "(shoulder, elbow torque in N·m)")])
+def test_wrong_action_shape_names_the_tasks_units(task, words):
+    """An action of the wrong shape is refused in the task's own units: the torque task's are N·m torques,
+    not the joint-angle changes in degrees it was once said to take."""
+    env = make(task)
+    env.reset()
+    with pytest.raises(ValueError) as e:
+        env.step(np.zeros(3))
+    assert str(e.value) == f"action must have shape (2,) {words}, got shape (3,)"
+
+
 # -- observation, reward, termination ----------------------------------------------
 def test_start_pose_and_perfect_vision():
     env = make()

@@ -26,8 +26,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from apac_mj.commands.hints import run_dir_hint
     from apac_mj.report import write_report
 
+    for path in args.results:
+        if (hint := run_dir_hint(path, "report")) is not None:
+            raise FileNotFoundError(hint)
     out = write_report(args.results, args.out, title=args.title)
     print(f"report: {out / 'report.md'}")
     for f in sorted(out.glob("*.png")):

@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from apac_mj.config import TrainConfig
     from apac_mj.recording.recording import EpisodeRecorder
+    from apac_mj.run.run_dir import RunDir
 
 EPILOG = """\
 examples:
@@ -28,7 +29,10 @@ difference for an existing directory is an error. A damaged checkpoints/latest.p
 warning, to checkpoints/previous.pt. Everything is checked before the directory is created.
 One process writes a run directory at a time (RUN_DIR/.lock; a second is refused, naming the first's
 PID). Ctrl-C and SIGTERM say what the last checkpoint holds; the same command resumes from it. A
-config.json or metrics.parquet that disagrees with the checkpoint is named (docs/reliability.md)."""
+config.json or metrics.parquet that disagrees with the checkpoint is named (docs/reliability.md).
+At the end it prints one JSON line: episodes, seeds, and the success rate and habit share over each
+seed's last N = min(100, episodes) training episodes (success_rate_last_N, habit_share_last_N; the
+progress bar's rates are over the last 20)."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -120,6 +124,18 @@ def recorder(out: str, record_every: int, cfg: TrainConfig) -> EpisodeRecorder:
     return EpisodeRecorder(RunDir(out).recordings, record_every=record_every, config=config_dict(cfg))
 
 
+#: The final summary's success rate and habit share are over each seed's last this many training episodes (or
+#: all of them in a shorter run; the keys name the window: ``success_rate_last_30`` for a 30-episode run).
+SUMMARY_WINDOW = 100
+
+
+def run_summary(run_dir: RunDir) -> dict:
+    """:meth:`RunDir.summary` over the last ``min(SUMMARY_WINDOW, episodes)`` training episodes, the keys naming
+    that window (a 30-episode run once printed ``success_rate_last_100``, the rate over all 30)."""
+    train = run_dir.metrics().query("phase == 'train'")
+    return run_dir.summary(last=max(1, min(SUMMARY_WINDOW, int(train["episode"].max()) + 1)))
+
+
 def run(args: argparse.Namespace) -> int:
     import contextlib
 
@@ -139,7 +155,7 @@ def run(args: argparse.Namespace) -> int:
         train(cfg, run_dir.path, progress=not args.no_progress, hooks=hooks)
     trained = run_dir.metric_rows() != before
     summary = {"run_dir": str(run_dir.path), "status": "trained" if trained else "already finished; nothing trained",
-               **run_dir.summary()}
+               **run_summary(run_dir)}
     print(json.dumps(summary))
     print(f"next: apac-mj evaluate {run_dir.path}")
     return 0

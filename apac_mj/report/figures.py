@@ -228,6 +228,7 @@ def _bars(ax: plt.Axes, table: pd.DataFrame, seed_values: pd.DataFrame, quantity
             labelled |= {"seeds"} if len(v) else set()
     ax.set_xticks(np.arange(len(conds)), [condition_short(c) for c in conds])
     if counts:  # each count under its own bar, the condition names below them
+        ax.xaxis.remove_overlapping_locs = False  # else the middle bar's count, on the condition's tick, is dropped
         ax.set_xticks([x for x, _ in counts], [t for _, t in counts], minor=True, rotation=90, fontsize=6)
         ax.tick_params(axis="x", which="major", pad=30, length=0)
     if cm:
@@ -317,8 +318,9 @@ def _mark_crossings(ax: plt.Axes, crossing: pd.DataFrame) -> None:
     eps = crossing["episode"].dropna().to_numpy()
     if len(crossing) == 0:
         return
-    ax.plot(eps, np.ones(len(eps)), "|", transform=ax.get_xaxis_transform(), color="black", ms=12, mew=1.2,
-            clip_on=False)
+    if len(eps):  # an empty unclipped line spans the figure's corner: constrained layout would collapse
+        ax.plot(eps, np.ones(len(eps)), "|", transform=ax.get_xaxis_transform(), color="black", ms=12, mew=1.2,
+                clip_on=False)
     words = (f">= {HABIT_THRESHOLD:.0%} habitual: {len(eps)}/{len(crossing)} seeds"
              + (f", median ep. {np.median(eps):.0f} ({eps.min():.0f}-{eps.max():.0f})" if len(eps) else ""))
     ax.set_xlabel(f"{ax.get_xlabel()}\n{words}")

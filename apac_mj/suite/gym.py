@@ -78,6 +78,11 @@ NAMESPACE = "apac_mj"
 VERSION = 0
 #: The action parameterizations (the module docstring): the default first.
 ACTIONS = ("feasible", "degrees")
+#: What an action is, by (parameterization, torque actuation), for the error an action of the wrong shape raises.
+ACTION_WORDS = {("feasible", False): "shoulder, elbow u in [-1, 1], mapped onto the feasible angle changes",
+                ("feasible", True): "shoulder, elbow u in [-1, 1], scaled to torques in N·m",
+                ("degrees", False): "shoulder, elbow change in degrees",
+                ("degrees", True): "shoulder, elbow torque in N·m"}
 #: The observation parameterizations: the default first.
 OBSERVATIONS = ("normalized", "cm")
 
@@ -166,7 +171,8 @@ class PlanarArmEnv(gymnasium.Env):
         """The joint-angle change (degrees) that ``action`` sends to the plant."""
         a = np.asarray(action, dtype=np.float64)
         if a.shape != (2,):
-            raise ValueError(f"action must have shape (2,) (shoulder, elbow), got shape {a.shape}")
+            what = ACTION_WORDS[self.action, self._torque]
+            raise ValueError(f"action must have shape (2,) ({what}), got shape {a.shape}")
         if not np.all(np.isfinite(a)):
             raise ValueError(f"action must be finite, got {a.tolist()}")
         if self.action == "degrees":
