@@ -366,8 +366,25 @@ def test_a_kinematic_run_of_a_task_with_dynamics_is_refused_before_anything_is_w
 
 def test_plant_overrides_are_checked_like_the_file():
     spec = suite.load_spec(CURL, plant={"actuation": "compliant", "gravity": True})
-    assert spec.plant.gravity and spec.plant.field_b == 0.0
+    assert spec.plant.gravity and spec.plant.field_b == 100.0  # merged into the task's [plant]: the field stays
     with pytest.raises(TaskSpecError, match="plant.gravity must be true or false"):
         suite.load_spec(CURL, plant={"actuation": "compliant", "gravity": "yes"})
     with pytest.raises(TaskSpecError, match="must be a PlantSpec or a table"):
         suite.load_spec(CURL, plant="compliant")
+
+
+def test_one_plant_key_overrides_merge_into_the_tasks_plant():
+    """Issue 29 item 5: overriding one key of a dynamics task's [plant] keeps the rest of its table (it used to
+    replace the table and fail with "needs a plant with dynamics")."""
+    from apac_mj.config import TrainConfig
+    from apac_mj.run.build import check
+
+    spec = suite.load_spec(CURL, plant={"field_on_episode": 10})
+    task = load_task(CURL).plant
+    assert spec.plant == dataclasses.replace(task, field_on_episode=10)
+    cfg = TrainConfig(task=CURL, task_overrides={"plant": {"field_on_episode": 10, "field_off_episode": 20}})
+    assert check(cfg).plant == dataclasses.replace(task, field_on_episode=10, field_off_episode=20)
+    whole = PlantSpec(actuation="compliant")  # a PlantSpec is the whole plant
+    assert suite.load_spec(CURL, plant=whole).plant == whole
+    with pytest.raises(TaskSpecError, match="field_off_episode"):
+        suite.load_spec(CURL, plant={"field_off_episode": 5})  # before the task's field_on_episode (110)

@@ -280,12 +280,14 @@ def check_task_plant(task: str, plant: Any) -> None:
         raise TaskSpecError(f"task {task!r}: {e}") from None
 
 
-def plant_override(value: Any, where: str) -> PlantSpec:
-    """A ``plant`` override: a :class:`PlantSpec`, or a table of ``[plant]`` keys (checked as in a file)."""
+def plant_override(value: Any, where: str, base: PlantSpec | None = None) -> PlantSpec:
+    """A ``plant`` override: a :class:`PlantSpec` (the whole plant), or a table of ``[plant]`` keys merged into
+    ``base`` (the task's own ``[plant]``: the keys given replace those, the others stay) and checked as in a file."""
     if isinstance(value, PlantSpec):
         return value
     if isinstance(value, dict):
-        return parse_plant(value, where)
+        table = {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(base or PlantSpec()).items()}
+        return parse_plant({**table, **value}, where)
     raise TaskSpecError(f"{where} must be a PlantSpec or a table of [plant] keys, got {value!r}")
 
 

@@ -166,7 +166,7 @@ class TaskSpec:
         if unknown:
             raise TaskSpecError(f"task {self.name!r}: unknown override(s) {sorted(unknown)}")
         typed = {k: v if k == "name" or (k == "region" and isinstance(v, Region))
-                 else plant_override(v, f"task {self.name!r}: override plant") if k == "plant"
+                 else plant_override(v, f"task {self.name!r}: override plant", self.plant) if k == "plant"
                  else _coerce(k, v, f"task {self.name!r}: override {k}") for k, v in overrides.items()}
         return dataclasses.replace(self, **typed)
 
