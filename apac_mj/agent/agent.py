@@ -81,7 +81,7 @@ class Agent:
         self.actor = build_actor(cfg.actor_hidden, init, S, A).to(self.device)
         self.critic = build_critic(cfg.critic_hidden, init, cfg.critic_form, S, A).to(self.device)
         X = self.sizes.extra_dim
-        #: Scale of each extra state entry (its observation's bound, e.g. deg/s): the networks read extra / scale.
+        #: Scale of each extra state entry (its observation spec's ``scale``, e.g. 500 deg/s): networks read extra / scale.
         self.extra_scale = torch.tensor(self.sizes.extra_scale, dtype=torch.float32, device=self.device)
         self.forward_model = build_forward_model(cfg.forward_hidden, self.plane_scale, init, A, X).to(self.device)
         self.inverse_model = build_inverse_model(cfg.inverse_hidden, init, A, X).to(self.device)
@@ -192,7 +192,7 @@ class Agent:
 
     def _plan_input(self, x: torch.Tensor) -> torch.Tensor:
         """The inverse model's input at action time: the target in the place of the next hand position."""
-        return x[..., POSITIONS] if not self.sizes.extra_dim else self._inverse_input(x, x[..., TARGET])
+        return self._inverse_input(x, x[..., TARGET])
 
     @torch.no_grad()
     def predict_arm(self, state: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
