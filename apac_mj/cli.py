@@ -12,6 +12,8 @@ import os
 import signal
 import sys
 
+from apac_mj.util.memory import address_space_limit, check_address_space, is_out_of_memory, out_of_memory
+
 #: (module, description) for every sub-command module; each registers its own parsers.
 COMMAND_MODULES = [
     "apac_mj.commands.tasks",
@@ -104,6 +106,29 @@ def _stdout_to_devnull() -> None:
         pass
 
 
+def command_line(args: argparse.Namespace) -> str:
+    """The command for messages: its name and the directory or file it writes or reads (``apac-mj train --out
+    runs/x``)."""
+    for flag, name in (("--out ", "out"), ("", "run_dir"), ("--run ", "run")):
+        if getattr(args, name, None) is not None:
+            return f"apac-mj {args.command} {flag}{getattr(args, name)}"
+    return f"apac-mj {args.command}"
+
+
+def error_message(e: BaseException, args: argparse.Namespace) -> str | None:
+    """An error that ends a command as one line: out of memory said as such (:mod:`apac_mj.util.memory`; an
+    ImportError too when the address space is limited, where a library that cannot map itself names another
+    cause, e.g. dm_control's "Cannot initialize a headless EGL display"), an OSError naming its file, else the
+    error's own message; None for any other ImportError."""
+    if is_out_of_memory(e) or (isinstance(e, ImportError) and address_space_limit() is not None):
+        return out_of_memory(e, command_line(args))
+    if isinstance(e, ImportError):
+        return None
+    if isinstance(e, OSError):
+        return os_error_message(e)
+    return e.args[0] if isinstance(e, KeyError) and e.args else str(e)
+
+
 def _main(argv: list[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -112,6 +137,7 @@ def _main(argv: list[str] | None) -> int:
         return 0
     previous = install_signal_handlers()
     try:
+        check_address_space(args.command, command_line(args))
         return int(args.func(args) or 0)
     except KeyboardInterrupt as e:
         terminated = isinstance(e, Terminated)
@@ -119,12 +145,11 @@ def _main(argv: list[str] | None) -> int:
         return 128 + (signal.SIGTERM if terminated else signal.SIGINT)
     except BrokenPipeError:
         raise  # the reader of stdout went away: main() ends quietly
-    except OSError as e:
-        print(f"apac-mj {args.command}: error: {os_error_message(e)}", file=sys.stderr)
-        return 2
-    except (KeyError, ValueError, RuntimeError) as e:
-        msg = e.args[0] if isinstance(e, KeyError) and e.args else str(e)
-        print(f"apac-mj {args.command}: error: {msg}", file=sys.stderr)
+    except (MemoryError, ImportError, OSError, KeyError, ValueError, RuntimeError) as e:
+        message = error_message(e, args)
+        if message is None:
+            raise  # an ImportError that is not for lack of memory: its traceback names the module
+        print(f"apac-mj {args.command}: error: {message}", file=sys.stderr)
         return 2
     finally:
         if previous is not None:

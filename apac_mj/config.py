@@ -303,7 +303,8 @@ ADDED = {"bf16_networks": list(TRAINED_NETWORKS),
 def migrate(d: dict[str, Any]) -> dict[str, Any]:
     """A config dict (config.json, cell.json's run, a checkpoint's) of any release in today's shape:
     ``agent.agent`` -> ``agent.kind``, the flat rule fields (:data:`MOVED`) -> their tables, fields added
-    since (:data:`ADDED`) at the value the release behaved as. Pure and idempotent; every value is kept."""
+    since (:data:`ADDED`) at the value the release behaved as, parameter tables registered since at their
+    defaults. Pure and idempotent; every value is kept."""
     agent = dict(d.get("agent", {}))
     if "agent" in agent:
         agent["kind"] = agent.pop("agent")
@@ -315,7 +316,14 @@ def migrate(d: dict[str, Any]) -> dict[str, Any]:
             value = agent.pop(old)
             for table, field in places:
                 agent[table] = {**agent.get(table, {}), field: value}
+    if agent:  # tables registered since (issue 28: mpc, voc), at their defaults: they act only in their own kinds
+        for name, cls in rules.tables().items():
+            agent.setdefault(name, {f.name: _json(getattr(cls(), f.name)) for f in dataclasses.fields(cls)})
     return {**d, "agent": agent} if "agent" in d else dict(d)
+
+
+def _json(v: Any) -> Any:
+    return list(v) if isinstance(v, tuple) else v
 
 
 def _tuples(d: dict[str, Any]) -> dict[str, Any]:

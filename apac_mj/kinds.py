@@ -23,15 +23,19 @@ pools and Ray workers only if the registering module is imported there too.
 from __future__ import annotations
 
 import dataclasses
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING, Callable, Sequence
 
 from apac_mj import rules
-from apac_mj.rules import ReliabilityParams, SpeedAccuracyParams, UncertaintyParams, VisionAwareParams
+from apac_mj.rules import (MPCParams, ReliabilityParams, SpeedAccuracyParams, UncertaintyParams,
+                           ValueOfComputationParams, VisionAwareParams)
 from apac_mj.util.registry import Registry
+
+#: The planning systems a kind may name (apac_mj.agent.planner.build).
+PLANNERS = ("inverse", "mpc")
 
 if TYPE_CHECKING:
     from apac_mj.config import AgentConfig
-    from apac_mj.types import Arbitrator
+    from apac_mj.types import Arbitrator, Planner
 
 
 class UnknownKindError(ValueError, KeyError):
@@ -65,12 +69,17 @@ class AgentKind:
     #: The table of the rule's parameters (apac_mj.rules: a dataclass with a ``table`` name; registered with
     #: the kind, so ``agent.<table>.<field>`` reaches it); None: the rule reads only AgentConfig's fields.
     params: type | None = None
+    #: The planning system: "inverse" (the paper's inverse model, one query per step) or "mpc" (model-predictive
+    #: control through the learned forward model, apac_mj.agent.planner; its table ``agent.mpc``).
+    planner: str = "inverse"
 
     def __post_init__(self) -> None:
         if not self.name or not self.name.replace("_", "").isalnum():
             raise ValueError(f"agent kind name must be a non-empty identifier, got {self.name!r}")
         if not (self.uses_habit or self.uses_planner):
             raise ValueError(f"agent kind {self.name!r} must use the habit, the planner or both")
+        if self.planner not in PLANNERS:
+            raise ValueError(f"agent kind {self.name!r}: planner must be one of {PLANNERS}, got {self.planner!r}")
         if not callable(self.arbitrator):
             raise ValueError(f"agent kind {self.name!r}: arbitrator must be callable (AgentConfig -> Arbitrator)")
 
@@ -137,6 +146,15 @@ def arbitrator_for(cfg: AgentConfig, state: dict | None = None) -> Arbitrator:
     return arbitrator
 
 
+def planner_for(cfg: AgentConfig, seeds: Sequence[int], action_dim: int, zone_radius: float,
+                stop_speed: float | None = None) -> Planner:
+    """The planning system of ``cfg.kind`` for the members ``seeds``, judging imagined arrival by the task's
+    ``zone_radius`` (cm) and ``stop_speed`` (deg/s; None: the zone alone)."""
+    from apac_mj.agent import planner
+
+    return planner.build(get(cfg.kind).planner, cfg, seeds, action_dim, zone_radius, stop_speed)
+
+
 def _builtin(name: str, beyond: bool = False) -> Callable[[AgentConfig], Arbitrator]:
     """A factory of the rule ``name`` of ``apac_mj.agent.arbitration`` (the paper's) or, ``beyond`` the paper,
     ``apac_mj.agent.arbitrators``; imported when first used (this module stays torch-free)."""
@@ -174,6 +192,15 @@ def _vision_aware(cfg: AgentConfig) -> Arbitrator:
 
 
 register(AgentKind("apac_vision", "APAC-V (vision-aware)", "darkturquoise", _vision_aware, params=VisionAwareParams))
+# Beyond the paper (docs/agent.md "Planning through the model"): MPC through the learned forward model as the
+# planning system, always (SPAC-MPC), under the paper's delta rule (APAC-MPC), and under a graded arbitrator that
+# weighs the expected gain of each planning iteration against its cost (value of computation).
+register(AgentKind("spac_mpc", "SPAC-MPC", "olive", _builtin("AlwaysPlan"), uses_habit=False, params=MPCParams,
+                   planner="mpc"))
+register(AgentKind("apac_mpc", "APAC-MPC", "navy", _builtin("DeltaArbitrator"), params=MPCParams, planner="mpc"))
+register(AgentKind("apac_voc", "APAC-VOC (graded)", "darkorange",
+                   _builtin("ValueOfComputationArbitrator", beyond=True), params=ValueOfComputationParams,
+                   planner="mpc"))
 #: The kinds registered here (the built-in ones: they cannot be removed).
 BUILTIN = names()
 #: The paper's kinds (the default agents of a preset).

@@ -13,6 +13,7 @@ the configuration (below the agent) builds every table, the rules (in ``apac_mj.
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any, ClassVar
 
 from apac_mj.util.registry import Registry
@@ -158,6 +159,107 @@ class KalmanParams:
         _require(self.table, self.process_floor >= 0, "process_floor must be >= 0", self.process_floor)
         _require(self.table, self.initial_process_var >= 0, "initial_process_var must be >= 0",
                  self.initial_process_var)
+
+
+@register
+@dataclasses.dataclass(frozen=True)
+class MPCParams:
+    """The model-predictive planner (``apac_mj.agent.planner.MPCPlanner``; kinds ``spac_mpc``, ``apac_mpc``,
+    ``apac_voc``): sampling-based MPC (MPPI with elites, TD-MPC2's form) through the learned forward model,
+    reward -distance per step, the critic's Q(s, pi(s)) after the horizon, warm-started from the last plan.
+    Defaults: docs/results/planning (measured on changing_target and the torque arm)."""
+
+    table: ClassVar[str] = "mpc"
+    #: Steps planned ahead through the forward model.
+    horizon: int = 4
+    #: Sampled action sequences per iteration.
+    candidates: int = 32
+    #: Sequences the next iteration's mean and spread are fitted to (the best by value).
+    elites: int = 8
+    #: Sequences from the habit: the actor rolled through the model (the first as it is, the others
+    #: perturbed by ``habit_noise``); 0: none.
+    habit_candidates: int = 2
+    #: Spread (tanh units) of the perturbed habit sequences.
+    habit_noise: float = 0.1
+    #: Iterations (sample, evaluate, refit) per decision at most; an arbitrator may grant fewer (anytime:
+    #: the best sequence found so far is returned).
+    iterations: int = 4
+    #: MPPI temperature: elite weights ``exp(temperature * (value - best))`` (value in cm of return).
+    temperature: float = 1.0
+    #: Bounds of the sampling spread (tanh units; the first iteration samples at ``max_std``).
+    min_std: float = 0.05
+    max_std: float = 1.0
+    #: Hidden layers (relu) of the dynamics model planned through (a residual model of the normalized motion,
+    #: ``apac_mj.agent.networks.build_dynamics_model``; the paper's forward model stays what it was).
+    model_hidden: tuple[int, ...] = (200, 200)
+    #: Its Adam learning rate.
+    model_lr: float = 1e-3
+    #: Its extra Adam steps, each on a fresh minibatch, after every training update (model-based RL trains the
+    #: model more often than the policy): one step per update left it 1.1 cm and 59 deg/s off (medians) after
+    #: 80 episodes on changing_target_torque_stop.
+    model_updates: int = 4
+
+    def __post_init__(self) -> None:
+        if isinstance(self.model_hidden, (list, tuple)):
+            object.__setattr__(self, "model_hidden", tuple(self.model_hidden))
+        _require(self.table, isinstance(self.model_hidden, tuple) and len(self.model_hidden) >= 1
+                 and all(_is_int(h) and h >= 1 for h in self.model_hidden),
+                 "model_hidden must be one or more integers >= 1", self.model_hidden)
+        _require(self.table, _finite(self.model_lr) and 0 < self.model_lr <= 1, "model_lr must be in (0, 1]",
+                 self.model_lr)
+        _require(self.table, _is_int(self.model_updates) and self.model_updates >= 0,
+                 "model_updates must be an integer >= 0", self.model_updates)
+        for name in ("horizon", "candidates", "iterations"):
+            _require(self.table, _is_int(getattr(self, name)) and getattr(self, name) >= 1,
+                     f"{name} must be an integer >= 1", getattr(self, name))
+        _require(self.table, _is_int(self.elites) and 1 <= self.elites <= self.candidates,
+                 f"elites must be an integer in [1, candidates = {self.candidates}]", self.elites)
+        _require(self.table, _is_int(self.habit_candidates) and self.habit_candidates >= 0,
+                 "habit_candidates must be an integer >= 0", self.habit_candidates)
+        for name in ("temperature", "habit_noise", "min_std", "max_std"):
+            v = getattr(self, name)
+            _require(self.table, isinstance(v, (int, float)) and math.isfinite(v) and v >= 0,
+                     f"{name} must be a finite number >= 0", v)
+        _require(self.table, self.temperature > 0, "temperature must be > 0", self.temperature)
+        _require(self.table, 0 < self.min_std <= self.max_std, "min_std must be in (0, max_std]", self.min_std)
+
+
+@register
+@dataclasses.dataclass(frozen=True)
+class ValueOfComputationParams:
+    """The graded arbitrator (``apac_mj.agent.arbitrators.ValueOfComputationArbitrator``, kind ``apac_voc``):
+    plan for the number of iterations whose expected gain over the habit exceeds its cost by the most."""
+
+    table: ClassVar[str] = "voc"
+    #: Window (planned decisions per entry) of the running mean gains (exponential, rate 1 / window).
+    window: int = 50
+    #: What a planning iteration costs, in habit decisions: "fixed" (``iteration_cost``: measured once by
+    #: bench/planning.py, reproducible) or "measured" (the running ratio of this run's own wall times: the
+    #: decisions then depend on the machine's speed, and a seed no longer gives the same numbers).
+    cost: str = "fixed"
+    #: One planning iteration's time in habit decisions (the actor's forward pass), for ``cost = "fixed"``:
+    #: bench/planning.py at the paper's sizes, 10 members, one thread: 14.8.
+    iteration_cost: float = 15.0
+    #: How many habit decisions' worth of time one movement step lasts: the exchange rate between computing
+    #: and movement time. Time costs what a step costs: the current distance to the target (cm of return per
+    #: step). 30: the full budget (4 iterations x 15) costs the paper's 2 extra steps (planning 3, habit 1).
+    decisions_per_step: float = 30.0
+
+    def __post_init__(self) -> None:
+        _require(self.table, _is_int(self.window) and self.window >= 1, "window must be an integer >= 1", self.window)
+        _require(self.table, self.cost in ("fixed", "measured"), "cost must be 'fixed' or 'measured'", self.cost)
+        _require(self.table, _finite(self.iteration_cost) and self.iteration_cost >= 0,
+                 "iteration_cost must be a finite number >= 0", self.iteration_cost)
+        _require(self.table, _finite(self.decisions_per_step) and self.decisions_per_step > 0,
+                 "decisions_per_step must be a finite number > 0", self.decisions_per_step)
+
+
+def _is_int(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _finite(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
 #: The integrators by ``AgentConfig.integrator`` name, with the table of their parameters (None: none).

@@ -2,7 +2,7 @@
 what the plant shows (:class:`Observation`), what an
 arbitrator sees (:class:`ArbitrationContext`) and decides (:class:`Decision`), what every step did
 (:class:`StepInfo`); the time cost of an action; and the extension points' base classes
-(:class:`Arbitrator`, :class:`Integrator`) and what the episode loop calls on an agent (:class:`Policy`).
+(:class:`Arbitrator`, :class:`Planner`, :class:`Integrator`) and what the episode loop calls on an agent (:class:`Policy`).
 
 They live below the plant (``suite``), the learner (``agent``) and the run (``run``), so each of those names
 them in its signatures without importing the others. Units are the paper's: cm and degrees. This module
@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import abc
 import dataclasses
-from typing import TYPE_CHECKING, Callable, NamedTuple, Protocol
+from typing import TYPE_CHECKING, Any, Callable, NamedTuple, Protocol
 
 import numpy as np
 
@@ -103,6 +103,9 @@ class ArbitrationContext:
     #: The forward model as a checker: action ``[E, 2]`` -> predicted end effector ``[E, 2]`` after it
     #: (from ``state``); None if not given.
     predict_end: Callable[[torch.Tensor], torch.Tensor] | None = None
+    #: The habit's sequence imagined through the forward model (:class:`HabitProbe`), computed when first
+    #: called (the rules that need it call it; the planner reuses it); None: no model planner.
+    habit_probe: Callable[[], "HabitProbe"] | None = None
     #: Radius of the target zone (cm) the agent judges its estimate by. The episode loop always passes the
     #: task's (``EpisodeLoop.zone_radius``, owned by ``TaskSpec.zone_radius``); the default, the paper's 0.5,
     #: is only for contexts built by hand (tests, a rule tried alone).
@@ -165,6 +168,19 @@ class StepInfo:
     #: The arbitrator's decision inputs at this step, ``name -> [E]`` (:attr:`Decision.inputs`; empty for
     #: rules without inputs): what recordings show as "why".
     arbitration: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
+    #: ``[E]`` seconds of computing the decision, each member's share of the measured wall time of the
+    #: actor's forward pass (every member) plus, where it planned, of the planner's call (shared by the
+    #: planning members in proportion to their iterations). A measurement: it differs between runs.
+    decision_seconds: np.ndarray | None = None
+    #: ``[E]`` ints: planning iterations run for each member (1 for the inverse model; 0 where the habit acted).
+    plan_iterations: np.ndarray | None = None
+    #: ``[E, K]`` a model planner's best imagined value after each of its iterations minus the habit's
+    #: (cm of return; NaN past a member's budget); None: no model planner.
+    plan_gains: np.ndarray | None = None
+    #: A model planner's imagined plan at this step (recordings draw it): ``"hand"`` ``[E, H + 1, 2]`` the chosen
+    #: sequence's imagined hand, ``"candidates"`` ``[E, C, H + 1, 2]`` a few of the last iteration's sampled
+    #: sequences (cm); rows of members that did not plan (``plan_iterations`` 0) are stale. None: no plan made.
+    plan: dict[str, np.ndarray] | None = None
     #: The same step in the learner's form, on the agent's device (the tensors the numpy fields above were
     #: copied from once): what the trainer stores and the episode loop carries, so that the step's data
     #: makes no round trip through the host. None: a record built by hand (hooks need only the numpy).
@@ -189,6 +205,9 @@ class Decision(NamedTuple):
     habit: torch.Tensor
     #: The decision's inputs, ``name -> [E]`` (recordings show them per step); empty: none to show.
     inputs: dict[str, torch.Tensor] = {}
+    #: ``[E]`` ints: how many iterations an anytime planner may run for each member that plans (a graded
+    #: arbitrator's choice); None: the planner's own maximum (``agent.mpc.iterations``).
+    iterations: torch.Tensor | None = None
 
 
 class Arbitrator(abc.ABC):
@@ -214,6 +233,63 @@ class Arbitrator(abc.ABC):
         """Restore :meth:`state_dict`'s output. Default: only an empty one is accepted."""
         if d:
             raise ValueError(f"the {type(self).__name__} rule keeps no statistics, but the checkpoint has {sorted(d)}")
+
+
+@dataclasses.dataclass(frozen=True)
+class HabitProbe:
+    """The habit's sequence imagined through the forward model from every member's state (``[E]`` each)."""
+
+    #: Its value: discounted -distance over the horizon, then the critic's Q(s_H, pi(s_H)) (cm of return).
+    value: torch.Tensor
+    #: The imagined hand's distance to the target at the horizon (cm; at the step it was imagined to arrive).
+    final_distance: torch.Tensor
+
+
+@dataclasses.dataclass
+class Proposal:
+    """A planner's proposals for every member at one step."""
+
+    #: ``[E, 2]`` the first action (degrees or N·m, no noise).
+    action: torch.Tensor
+    #: ``[E]`` ints: the iterations each member's plan ran (0: it did not plan).
+    iterations: torch.Tensor
+    #: ``[E, iterations_max]`` the best value found after each iteration (cm of return; NaN past a member's
+    #: budget), beside :attr:`habit_value`: what an anytime plan gains per iteration. None: not a model planner.
+    best_values: torch.Tensor | None = None
+    #: ``[E]`` the habit's imagined value (:class:`HabitProbe`); None: not a model planner.
+    habit_value: torch.Tensor | None = None
+
+
+class Planner(abc.ABC):
+    """The planning system's proposal (``apac_mj.agent.planner``): the paper's inverse model, or a planner
+    through the forward model. It may keep what it carries between steps (a warm start) and random streams
+    (:meth:`state_dict`); the defaults keep nothing."""
+
+    #: How many iterations one decision may run at most (1: a single query, the inverse model).
+    max_iterations: int = 1
+    #: The last decision's imagined plan for recordings (:attr:`StepInfo.plan`); None: none (no model planner).
+    last_plan: dict[str, torch.Tensor] | None = None
+
+    @abc.abstractmethod
+    def propose(self, agent: "Policy", ctx: ArbitrationContext, iterations: torch.Tensor) -> Proposal:
+        """Proposals for every member from ``ctx.state``; ``iterations`` ``[E]`` ints: each member's budget
+        (0: the member does not plan this step; its row is not used)."""
+
+    def probe(self, agent: "Policy", state: torch.Tensor) -> HabitProbe | None:
+        """The habit imagined through the model (for the arbitrators that weigh planning); None: no model."""
+        return None
+
+    def reset(self, mask: np.ndarray) -> None:
+        """New episodes for the members in ``mask``. Default: nothing carried."""
+
+    def state_dict(self) -> dict[str, Any]:
+        """What a checkpoint keeps. Default: nothing."""
+        return {}
+
+    def load_state_dict(self, d: dict[str, Any]) -> None:
+        """Restore :meth:`state_dict`'s output. Default: only an empty one is accepted."""
+        if d:
+            raise ValueError(f"{type(self).__name__} has no state; got keys {sorted(d)}")
 
 
 class Integrator(abc.ABC):

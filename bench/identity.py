@@ -7,6 +7,9 @@ file by file (metrics.parquet, eval/*.parquet, eval/summary.json, config.json an
     python bench/identity.py compare OUT/before OUT/after
     python bench/identity.py compare OUT/before OUT/after --ignore-key executed_action --exclude compliant \
         --exclude torque     # issue 27: a new config field; the dynamics tasks are meant to move
+    python bench/identity.py compare OUT/before OUT/after --ignore-key mpc --ignore-key voc \
+        --ignore-key habit_seconds --ignore-key planning_seconds --ignore-key plan_iterations
+                         # issue 28: two new parameter tables; the measured decision times (new columns)
 
 Each cell trains 2 seeds for a few tiny episodes (babbling, planning and habit phases), in two calls (half, then
 extended to the full length: the resume path), then runs the frozen tests on a few targets. A cell that raises
@@ -69,8 +72,8 @@ def _cell(apac_mj: Any, kind: str, task: str, cell: Path) -> None:
 
 
 def compare(a: Path, b: Path, ignore: Sequence[str] = (), exclude: Sequence[str] = ()) -> int:
-    """File by file; ``ignore``: keys (at any depth of a JSON file or checkpoint) left out on both sides, e.g. a
-    config field added between the commits; ``exclude``: substrings of cell names not compared (listed)."""
+    """File by file; ``ignore``: keys (at any depth of a JSON file or checkpoint, or columns of a table) left out
+    on both sides, e.g. a config field added between the commits; ``exclude``: substrings of cell names not compared (listed)."""
     global _NOT_COMPUTED
     _NOT_COMPUTED = (*_NOT_COMPUTED, *ignore)
     cells = sorted({p.name for p in a.iterdir() if p.is_dir()} | {p.name for p in b.iterdir() if p.is_dir()})
@@ -115,7 +118,7 @@ def _differs(x: Path, y: Path) -> str | None:
     if x.suffix == ".parquet":
         import pandas as pd
 
-        dx, dy = pd.read_parquet(x), pd.read_parquet(y)
+        dx, dy = (pd.read_parquet(p).drop(columns=list(_NOT_COMPUTED), errors="ignore") for p in (x, y))
         return None if dx.equals(dy) else f"tables differ ({dx.shape} vs {dy.shape})"
     if x.suffix == ".json":
         jx, jy = (_strip(json.loads(p.read_text())) for p in (x, y))
@@ -132,10 +135,23 @@ _NOT_COMPUTED = ("git_commit", "run_dir", "torch_rng")
 
 
 def _strip(obj: Any) -> Any:
-    """Without the keys of :data:`_NOT_COMPUTED`."""
+    """Without the keys of :data:`_NOT_COMPUTED`; a checkpoint's copy of the metric rows (parquet bytes) as its
+    table's JSON without those columns."""
     if isinstance(obj, dict):
-        return {k: _strip(v) for k, v in obj.items() if k not in _NOT_COMPUTED}
+        return {k: _metric_table(v) if k == "metric_table" else _strip(v)
+                for k, v in obj.items() if k not in _NOT_COMPUTED}
     return obj
+
+
+def _metric_table(t: Any) -> Any:
+    import io
+
+    import pandas as pd
+
+    if not hasattr(t, "numel") or not t.numel():
+        return t
+    df = pd.read_parquet(io.BytesIO(t.numpy().tobytes()))
+    return df.drop(columns=list(_NOT_COMPUTED), errors="ignore").to_json()
 
 
 def _tensors_differ(x: Any, y: Any, where: str) -> str | None:
@@ -175,8 +191,8 @@ def main() -> int:
     c.add_argument("before", type=Path)
     c.add_argument("after", type=Path)
     c.add_argument("--ignore-key", action="append", default=[], metavar="KEY",
-                   help="leave this key out of every JSON file and checkpoint on both sides (a config field added "
-                        "between the commits); repeatable")
+                   help="leave this key out of every JSON file and checkpoint, and this column out of every table, "
+                        "on both sides (a config field or column added between the commits); repeatable")
     c.add_argument("--exclude", action="append", default=[], metavar="TEXT",
                    help="do not compare cells whose name contains TEXT (e.g. the tasks a change is meant to move); "
                         "repeatable")

@@ -74,7 +74,7 @@ def main() -> None:
                                   agent=AgentConfig(kind=agent, **{**NETS[args.nets],
                                                                     **agent_overrides(args.overrides)}))
                 t = time.perf_counter()
-                run = train(cfg, root / f"{agent}__{task}", progress=True)
+                run = train(cfg, root / f"{agent}__{task}", progress=True, threads=args.threads)
                 print(f"{agent} on {task}: {time.perf_counter() - t:.0f} s")
                 results[(agent, task)] = pd.read_parquet(run / "metrics.parquet")
     finally:

@@ -87,7 +87,7 @@ def measure(E: int, net: str, episodes: int, actuation: str) -> tuple[float, dic
     try:
         with timed_parts(totals):
             t = time.perf_counter()
-            train(cfg, out, progress=False, on_step=count)
+            train(cfg, out, progress=False, on_step=count, threads=torch.get_num_threads())  # main()'s --threads
             wall = time.perf_counter() - t
     finally:
         shutil.rmtree(out, ignore_errors=True)

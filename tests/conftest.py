@@ -21,6 +21,8 @@ def nets(*hidden: int) -> dict[str, tuple[int, ...]]:
 TINY = dict(nets(16, 16), batch_size=8, replay_size=64, babbling_episodes=1, planning_episodes=2)
 #: Tinier, for runs over every task and kind: 8-unit networks, one planning episode (test_build, test_state_layout).
 TINY8 = dict(nets(8, 8), batch_size=4, replay_size=50, babbling_episodes=1, planning_episodes=1)
+#: A small model-predictive planner (the kinds that plan through a model; no effect on the others).
+TINY_MPC = {"mpc": {"horizon": 2, "candidates": 8, "elites": 2, "iterations": 2, "model_hidden": (8, 8)}}
 
 
 def bench_module(name: str):
@@ -33,3 +35,13 @@ def bench_module(name: str):
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+#: The frozen tests' and the training's measured wall-time columns: they differ from run to run.
+MEASURED_SECONDS = ("habit_seconds", "planning_seconds")
+
+
+def deterministic(df):
+    """``df`` without the measured wall-time columns (habit_seconds, planning_seconds) where it has them,
+    for comparing two runs' frames exactly; plan_iterations, which repeats, is kept."""
+    return df.drop(columns=[c for c in MEASURED_SECONDS if c in df.columns])

@@ -125,3 +125,39 @@ def test_main_writes_csv(ceil, tmp_path):
     rows = list(csv.DictReader(out.open()))
     assert [(r["condition"], r["controller"]) for r in rows] == [("torque", "pd"), ("gravity", "target_angles")]
     assert all(r["episodes"] == "2" for r in rows)
+
+
+def test_stop_task_rollouts_end_only_when_stopped(ceil):
+    """On the stop task a model rollout ends where the episode would: a step that leaves the hand inside the zone
+    but faster than stop_speed does not end it (the next step's distance counts too), one at rest does; on the
+    torque task (no stop criterion) the same fast step ends it."""
+    costs = {}
+    for condition in ("torque_stop", "torque"):
+        env = ceil.make_env(condition, 0)
+        env.task.set_target_override((12.0, 15.0))  # the start pose's hand
+        env.reset()
+        model = ceil.Model(env)
+        model.save()
+        fast, rest = np.array([[0.03, 0.0], [0.0, 0.0]]), np.zeros((2, 2))
+        model.restore()
+        d1 = model.step(fast[0])
+        assert d1 <= model.zone and np.abs(env.physics.joint_velocities()).max() > 10.0
+        assert model.reached(d1) is (condition == "torque")
+        d2 = model.step(fast[1])
+        costs[condition] = model.cost(fast), d1, d2
+        model.restore()
+        r1 = model.step(rest[0])
+        assert model.reached(r1) and model.cost(rest) == r1
+    cost, d1, d2 = costs["torque_stop"]
+    assert cost == d1 + d2
+    cost, d1, _ = costs["torque"]
+    assert cost == d1
+
+
+def test_mpc_stops_in_the_zone(ceil):
+    """The MPC honours the stop criterion: on grid targets of the stop task it ends episodes at rest in the
+    zone (the environment judges success: inside and both joints <= stop_speed)."""
+    row = ceil.run_row("torque_stop", "mpc", episodes=3, samples=48, horizon=3, iterations=2, seed=0,
+                       targets="grid")
+    assert row["task"] == "changing_target_torque_stop"
+    assert row["successes"] >= 2, row

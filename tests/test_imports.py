@@ -122,6 +122,7 @@ LAYERS = (
 DECLARED_UPWARD = {
     ("apac_mj.kinds", "apac_mj.agent.arbitration"): "built-in kinds' rules, imported on first use",
     ("apac_mj.kinds", "apac_mj.agent.arbitrators"): "built-in kinds' rules, imported on first use",
+    ("apac_mj.kinds", "apac_mj.agent.planner"): "built-in kinds' planners, imported on first use",
 }
 
 

@@ -12,7 +12,8 @@ import pandas as pd
 import pytest
 
 from apac_mj.config import MOVED, migrate, to_dict, train_config_from_dict
-from apac_mj.run.evaluate import evaluate
+from apac_mj.run.evaluate import MEASURED_COLUMNS, evaluate
+from apac_mj.run.run_dir import TIMING_COLUMNS
 from apac_mj.run.trainer import train
 
 FIXTURE = Path(__file__).resolve().parent / "fixtures" / "run_936695d"
@@ -57,13 +58,17 @@ def run(tmp_path) -> Path:
 def test_an_old_run_evaluates_to_the_same_rows(run):
     evaluate(run, limit=6)
     for protocol in ("grid", "occluded"):
-        pd.testing.assert_frame_equal(pd.read_parquet(run / "eval" / f"{protocol}.parquet"),
-                                      pd.read_parquet(FIXTURE / "eval" / f"{protocol}.parquet"), **FLOAT_TOLERANCE)
+        rows, expected = (pd.read_parquet(d / "eval" / f"{protocol}.parquet") for d in (run, FIXTURE))
+        assert list(rows.columns) == list(expected.columns) + list(MEASURED_COLUMNS)  # measured since: appended
+        pd.testing.assert_frame_equal(rows[expected.columns], expected, **FLOAT_TOLERANCE)
 
 
 def test_an_old_run_extends_with_the_numbers_of_its_release(run):
     cfg = train_config_from_dict({**_stored(), "episodes": 8})
     train(cfg, run, progress=False)
-    pd.testing.assert_frame_equal(pd.read_parquet(run / "metrics.parquet"),
-                                  pd.read_parquet(FIXTURE / "expected_metrics_8_episodes.parquet"), **FLOAT_TOLERANCE)
+    metrics = pd.read_parquet(run / "metrics.parquet")
+    expected = pd.read_parquet(FIXTURE / "expected_metrics_8_episodes.parquet")
+    assert list(metrics.columns) == [*expected.columns, *TIMING_COLUMNS]  # measured since: appended, NaN before
+    assert metrics.planning_seconds.isna().sum() == len(pd.read_parquet(FIXTURE / "metrics.parquet"))
+    pd.testing.assert_frame_equal(metrics[expected.columns], expected, **FLOAT_TOLERANCE)
     assert json.loads((run / "config.json").read_text())["agent"]["kind"] == "apac_speed_accuracy"

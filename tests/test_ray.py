@@ -14,6 +14,8 @@ from apac_mj.experiments.presets import load_preset
 from apac_mj.experiments.results import load_results, load_tests
 from apac_mj.experiments.executors import LocalExecutor, RayExecutor, make_executor
 
+from conftest import deterministic
+
 pytestmark = pytest.mark.ray
 
 TINY = ["seeds=2", "episodes=2", "checkpoint_every=1", "conditions=changing_target", "agents=spac,apac",
@@ -55,7 +57,8 @@ def test_ray_grid_equals_local_grid(tmp_path: Path) -> None:
     assert names == sorted(p.relative_to(tmp_path / "ray").as_posix() for p in (tmp_path / "ray").rglob("*")
                            if "checkpoints" not in p.parts and p.name != "manifest.json")
     for load in (load_results, load_tests):
-        pd.testing.assert_frame_equal(load(tmp_path / "local"), load(tmp_path / "ray"), check_exact=True)
+        pd.testing.assert_frame_equal(deterministic(load(tmp_path / "local")), deterministic(load(tmp_path / "ray")),
+                                      check_exact=True)
 
 
 # -- a real cluster: `ray start --head`, a second `ray start --address` node, `apac-mj grid --ray-address` --------
@@ -176,4 +179,5 @@ def test_grid_on_a_ray_cluster_survives_a_killed_worker_node(tmp_path: Path) -> 
         torch.set_num_threads(threads)
     assert _cells(tmp_path / "ray") == _cells(tmp_path / "local")
     for load in (load_results, load_tests):
-        pd.testing.assert_frame_equal(load(tmp_path / "local"), load(tmp_path / "ray"), check_exact=True)
+        pd.testing.assert_frame_equal(deterministic(load(tmp_path / "local")), deterministic(load(tmp_path / "ray")),
+                                      check_exact=True)

@@ -28,7 +28,9 @@ FIGURES = ["fig3_training_success.png", "fig4_test.png", "fig5_arbitration.png",
            "fig11_scoreboard.png"]
 
 
-def _metrics(rng: np.random.Generator, agent: str, seeds, episodes: int) -> pd.DataFrame:
+def _metrics(rng: np.random.Generator, agent: str, seeds, episodes: int, timed: bool = False) -> pd.DataFrame:
+    """Random training metrics; ``timed``: with the measured columns (habit_seconds, planning_seconds,
+    plan_iterations; a planning action ~3-5 ms, a habitual one ~1 ms, 1-4 iterations per planning action)."""
     rows = []
     for seed in seeds:
         for ep in range(-2, episodes):
@@ -42,6 +44,11 @@ def _metrics(rng: np.random.Generator, agent: str, seeds, episodes: int) -> pd.D
                              critic_loss=float(rng.random() * 10), actor_loss=float(rng.normal() * 5),
                              forward_loss=float(rng.random()), inverse_loss=float(rng.random() * 100),
                              estimate_error=float(rng.random() * 0.5)))
+            if timed:
+                plans = steps - habit
+                rows[-1].update(habit_seconds=habit * 1e-3 * (0.8 + 0.4 * rng.random()),
+                                planning_seconds=plans * 1e-3 * (3 + 2 * rng.random()),
+                                plan_iterations=plans * int(rng.integers(1, 5)))
     return pd.DataFrame(rows)
 
 
@@ -63,14 +70,16 @@ def _eval(rng: np.random.Generator, seeds, n_targets: int, with_path: bool) -> p
 
 
 def make_results(root: Path, seed: int = 0, seeds=(0, 1, 2), episodes: int = 30, preset_name: str = "smoke",
-                 conditions: str = "static_target,changing_target,changing_target_changing_kinematics") -> Path:
-    """A results directory with every cell of a small grid filled with random contract-shaped data."""
+                 conditions: str = "static_target,changing_target,changing_target_changing_kinematics",
+                 timed: bool = False) -> Path:
+    """A results directory with every cell of a small grid filled with random contract-shaped data
+    (``timed``: the metrics with the measured decision-time columns)."""
     rng = np.random.default_rng(seed)
     preset = load_preset(preset_name, [f"seeds={list(seeds)}", f"episodes={episodes}", f"conditions={conditions}",
                                        "tests.generalization_conditions=static_target,changing_target"])
     for cell in grid.cells(preset):
         d = grid.prepare_cell(cell, preset, root)
-        _metrics(rng, cell.agent, seeds, episodes).to_parquet(d / "metrics.parquet")
+        _metrics(rng, cell.agent, seeds, episodes, timed).to_parquet(d / "metrics.parquet")
         (d / "eval").mkdir()
         for protocol in cell.protocols:
             n = 39 if protocol == "generalization" else 12
@@ -652,4 +661,153 @@ def test_fig5_of_a_short_run_lays_out_without_warnings(tmp_path, monkeypatch) ->
     suptitle = fig._suptitle.get_window_extent(renderer)
     titles = [ax.title.get_window_extent(renderer) for ax in fig.axes if ax.get_visible()]
     assert len(titles) == 3 and all(t.y1 <= suptitle.y0 for t in titles)
+    figures.plt.close("all")
+
+
+# -- measured decision times (issue 28) -----------------------------------------------------------------
+
+MEASURED_QUANTITIES = {"decision_ms_late", "planning_ms_late", "plan_iterations_late", "measured_planning_ratio"}
+
+
+def test_measured_planning_ratio_of_a_hand_made_frame() -> None:
+    """The late window (last 20% of 10 episodes: 8 and 9) of a hand-made metrics frame, computed by hand:
+    per seed the mean decision time per episode (ms), its planning part, the iterations per episode and
+    (planning seconds / planning actions) / (habit seconds / habit actions). A seed that never planned has
+    no ratio; SPAC, which never acts by habit, has none at all; rows before the timing (NaN) do not count."""
+    rows = []
+    for agent in ("apac", "spac"):
+        for seed in (0, 1):
+            for ep in range(10):
+                rows.append(dict(agent=agent, condition="changing_target", region="all", seed=seed, episode=ep,
+                                 phase="train", success=True, steps=5, habit_actions=5 if agent == "apac" else 0,
+                                 planning_actions=0 if agent == "apac" else 5, habit_seconds=math.nan,
+                                 planning_seconds=math.nan, plan_iterations=math.nan))
+    m = pd.DataFrame(rows)
+    late = {(0, 8): (3, 2, 0.003, 0.012, 2), (0, 9): (4, 1, 0.005, 0.004, 1),  # seed 0 of APAC used both kinds
+            (1, 8): (5, 0, 0.006, 0.0, 0), (1, 9): (5, 0, 0.004, 0.0, 0)}      # seed 1 only the habit
+    for (seed, ep), (h, p, hs, ps, it) in late.items():
+        sel = (m.agent == "apac") & (m.seed == seed) & (m.episode == ep)
+        m.loc[sel, ["habit_actions", "planning_actions", "habit_seconds", "planning_seconds", "plan_iterations"]] = \
+            [h, p, hs, ps, it]
+    spac_late = (m.agent == "spac") & (m.episode >= 8)
+    m.loc[spac_late, ["habit_seconds", "planning_seconds", "plan_iterations"]] = [0.0, 0.02, 5]
+    m.loc[(m.agent == "apac") & (m.episode == 3), ["habit_seconds", "planning_seconds", "plan_iterations"]] = \
+        [9.0, 9.0, 99]  # before the late window: does not count
+    values = per_seed(m, pd.DataFrame())
+
+    def value(q: str, agent: str, seed: int) -> float:
+        sel = values[(values.quantity == q) & (values.agent == agent) & (values.seed == seed)]
+        assert len(sel) == 1, (q, agent, seed)
+        return float(sel["value"].iloc[0])
+
+    assert value("measured_planning_ratio", "apac", 0) == pytest.approx((0.016 / 3) / (0.008 / 7))  # 4.667
+    assert math.isnan(value("measured_planning_ratio", "apac", 1))
+    assert not ((values.quantity == "measured_planning_ratio") & (values.agent == "spac")).any()
+    assert value("decision_ms_late", "apac", 0) == pytest.approx((15 + 9) / 2)
+    assert value("planning_ms_late", "apac", 0) == pytest.approx((12 + 4) / 2)
+    assert value("plan_iterations_late", "apac", 0) == pytest.approx(1.5)
+    assert value("decision_ms_late", "apac", 1) == pytest.approx(5.0)
+    assert value("decision_ms_late", "spac", 0) == pytest.approx(20.0)
+    assert value("plan_iterations_late", "spac", 1) == pytest.approx(5.0)
+    ratio = values[(values.quantity == "measured_planning_ratio") & (values.seed == 0)].iloc[0]
+    assert ratio["n"] == 10  # the actions behind it
+    table = key_numbers(values)
+    r = _row(table, "measured_planning_ratio", "apac", "changing_target")
+    assert (r["figure"], r["unit"], r["n_seeds"]) == ("Fig. 6", "x", 1) and r["paper"].startswith("3")
+    assert r["mean"] == pytest.approx(0.112 / 0.024) and r["per_seed"] == "0: 4.67; 1: nan"
+
+
+@pytest.fixture(scope="module")
+def timed_results(tmp_path_factory) -> Path:
+    return make_results(tmp_path_factory.mktemp("timed"), seeds=(0, 1), episodes=10, timed=True)
+
+
+def test_measured_decision_times_reach_the_table(timed_results) -> None:
+    """Results with the measured columns: each (agent, condition) gets the decision times, iterations and
+    (where it used both kinds of action: the arbitrating kinds) the measured planning/habit ratio, each a
+    mean over seeds of the per-seed values with the report's bootstrap interval; report.md lists them."""
+    out = report.write_report(timed_results, draw=False)
+    table = key_table(out)
+    assert MEASURED_QUANTITIES <= set(table["quantity"])
+    assert set(table.loc[table["quantity"] == "measured_planning_ratio", "agent"]) == {"apac"}
+    assert {"ddpg", "spac", "apac"} == set(table.loc[table["quantity"] == "decision_ms_late", "agent"])
+    df = pd.read_parquet(timed_results / "apac__changing_target" / "metrics.parquet")
+    late = df[(df["phase"] == "train") & (df["episode"] >= 8)]
+    per = late.groupby("seed")
+    ms = [1e3 * (g["habit_seconds"] + g["planning_seconds"]).mean() for _, g in per]
+    ratio = [(g["planning_seconds"].sum() / g["planning_actions"].sum())
+             / (g["habit_seconds"].sum() / g["habit_actions"].sum()) for _, g in per]
+    r = _row(table, "decision_ms_late", "apac", "changing_target")
+    assert (r["mean"], r["unit"], r["samples"]) == (pytest.approx(np.mean(ms)), "ms", len(late))
+    assert (r["ci95_low"], r["ci95_high"]) == pytest.approx(stats.bootstrap_interval(ms))
+    r = _row(table, "measured_planning_ratio", "apac", "changing_target")
+    assert r["mean"] == pytest.approx(np.mean(ratio)) and 1 < r["mean"] < 10
+    assert _row(table, "planning_ms_late", "apac", "changing_target")["mean"] == pytest.approx(
+        np.mean([1e3 * g["planning_seconds"].mean() for _, g in per]))
+    assert _row(table, "plan_iterations_late", "apac", "changing_target")["mean"] == pytest.approx(
+        np.mean([g["plan_iterations"].mean() for _, g in per]))
+    assert _row(table, "planning_ms_late", "ddpg", "changing_target")["mean"] == 0
+    md = (out / "report.md").read_text()
+    assert "measured time per planning action / per habitual action" in md
+
+
+def _fig6_rows(fig) -> list[list[str]]:
+    """Fig. 6's visible panels' titles, row by row (top first)."""
+    panels = [ax for ax in fig.axes if ax.get_visible()]
+    tops = sorted({round(ax.get_position().y0, 3) for ax in panels}, reverse=True)
+    return [[ax.get_title() for ax in panels if round(ax.get_position().y0, 3) == y] for y in tops]
+
+
+def test_fig6_adds_the_measured_row_with_each_agents_ratio(timed_results, tmp_path, monkeypatch) -> None:
+    """With the measured columns Fig. 6 has a third row: the decision time per episode (ms) per agent, titled
+    with each agent's measured planning/habit time per action (the table's) beside the paper's 3."""
+    import matplotlib.lines
+
+    fig = _drawn(figures.fig_steps_time, timed_results, tmp_path, monkeypatch)
+    rows = _fig6_rows(fig)
+    assert len(rows) == 3 and all(len(r) == 3 for r in rows)
+    table = key_numbers(per_seed(load_results(timed_results), load_tests(timed_results)))
+    for title, cond in zip(rows[2], ("static_target", "changing_target", "changing_target_changing_kinematics")):
+        ratio = _row(table, "measured_planning_ratio", "apac", cond)["mean"]
+        words = " ".join(title.split())
+        assert f"measured planning/habit time per action: APAC {ratio:.1f}x (paper: 3x)" in words, words
+    bottom = [ax for ax in fig.axes if ax.get_visible() and ax.get_ylabel().startswith("measured decision time")]
+    assert len(bottom) == 3
+    metrics = load_results(timed_results)
+    top = metrics[(metrics["phase"] == "train") & (metrics["agent"] == "spac")
+                  & (metrics["condition"] == "changing_target") & (metrics["region"] == "all")]
+    mean_ms = 1e3 * (top["habit_seconds"] + top["planning_seconds"]).groupby(top["episode"]).mean()
+    spac = [ln for ln in bottom[1].get_lines() if ln.get_label() == "SPAC"]
+    assert len(spac) == 1 and isinstance(spac[0], matplotlib.lines.Line2D)
+    assert spac[0].get_ydata()[0] == pytest.approx(mean_ms.iloc[0])  # the moving average starts at episode 0's mean
+    assert "measured" in fig._suptitle.get_text()
+    figures.plt.close("all")
+
+
+def test_results_without_measured_times_keep_fig6_and_the_table_as_they_were(made, tmp_path, monkeypatch) -> None:
+    """Results from before the measured columns: no measured quantity, Fig. 6 the paper's two rows with its
+    old title; a cell without them among cells with them (an older run in the grid) gets no measured line."""
+    results, out = made
+    assert not MEASURED_QUANTITIES & set(key_table(out)["quantity"])
+    fig = _drawn(figures.fig_steps_time, results, tmp_path, monkeypatch)
+    assert len(_fig6_rows(fig)) == 2
+    assert fig._suptitle.get_text().replace("\n", " ").startswith("Fig. 6: steps and time per episode")
+    assert "measured" not in fig._suptitle.get_text()
+    figures.plt.close("all")
+    import shutil
+
+    mixed = tmp_path / "mixed"
+    shutil.copytree(results, mixed, ignore=shutil.ignore_patterns("report"))
+    f = mixed / "apac__changing_target" / "metrics.parquet"
+    m = pd.read_parquet(f)
+    m.assign(habit_seconds=1e-3 * m["habit_actions"], planning_seconds=4e-3 * m["planning_actions"],
+             plan_iterations=m["planning_actions"]).to_parquet(f)
+    table = key_numbers(per_seed(load_results(mixed), load_tests(mixed)))
+    cells = table[table["quantity"] == "decision_ms_late"][["agent", "condition"]].values.tolist()
+    assert cells == [["apac", "changing_target"]]
+    assert _row(table, "measured_planning_ratio", "apac", "changing_target")["mean"] == pytest.approx(4.0)
+    fig = _drawn(figures.fig_steps_time, mixed, tmp_path, monkeypatch)
+    rows = _fig6_rows(fig)
+    assert len(rows) == 3 and "APAC 4.0x (paper: 3x)" in " ".join(rows[2][1].split())
+    assert "no agent used both" in " ".join(rows[2][0].split())
     figures.plt.close("all")

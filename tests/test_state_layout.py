@@ -25,6 +25,7 @@ from apac_mj.config import AgentConfig, TrainConfig
 from apac_mj.suite.task_spec import task_names
 from apac_mj.types import ARM, ELBOW, END, EXTRA, POSITION_DIM, POSITIONS, TARGET, StepInfo
 
+from conftest import TINY_MPC
 from conftest import TINY8 as TINY
 
 PACKAGE = Path(__file__).resolve().parents[1] / "apac_mj"
@@ -79,7 +80,7 @@ def test_every_kind_trains_on_every_task(tmp_path, kind, task):
     """One babbling episode (the rules observe every step), then one arbitrated episode (no planning phase: the
     kind's rule decides from the first training step)."""
     cfg = TrainConfig(task=task, seeds=(0,), episodes=1, checkpoint_every=1,
-                      agent=AgentConfig(kind=kind, **{**TINY, "planning_episodes": 0}))
+                      agent=AgentConfig(kind=kind, **{**TINY, "planning_episodes": 0}, params=TINY_MPC))
     run = apac_mj.train(cfg, tmp_path, progress=False)
     metrics = pd.read_parquet(run / "metrics.parquet")
     train = metrics[metrics.phase == "train"]

@@ -33,7 +33,10 @@ from apac_mj.agent.replay import EnsembleReplay
 from apac_mj.config import PRECISIONS, AgentConfig
 from apac_mj.kinematics import Geometry, Sizes
 from apac_mj.types import ARM, ELBOW, END, EXTRA, LOSSES, MOTION_EXTRA, POSITIONS, TARGET
-from apac_mj.agent.networks import build_actor, build_critic, build_forward_model, build_inverse_model
+from apac_mj import kinds
+from apac_mj.agent.networks import (build_actor, build_critic, build_dynamics_model, build_forward_model,
+                                    build_inverse_model)
+from apac_mj.rules import MPCParams
 from apac_mj.agent.noise import OUNoise
 
 NETWORKS = ("actor", "critic", "forward_model", "inverse_model", "target_actor", "target_critic")
@@ -87,8 +90,22 @@ class Agent:
         self.inverse_model = build_inverse_model(cfg.inverse_hidden, init, A, X).to(self.device)
         self.target_actor = _frozen_copy(self.actor)
         self.target_critic = _frozen_copy(self.critic)
+        #: The networks the optimizer trains, with their learning rates; and every network a checkpoint keeps.
+        self.trained = {n: getattr(cfg, lr) for n, lr in TRAINED.items()}
+        self.networks: tuple[str, ...] = NETWORKS
+        #: The planning system's dynamics model (kinds that plan through a model, ``agent.mpc``; built last, so
+        #: that the other networks are initialized as in every other kind); None: the kind has none.
+        self.dynamics_model: nn.Module | None = None
+        #: Extra Adam steps of the dynamics model alone after every update (``mpc.model_updates``; 0: none).
+        self.model_updates = 0
+        if kinds.get(cfg.kind).planner == "mpc":
+            mpc = cfg.params[MPCParams.table]
+            self.model_updates = mpc.model_updates
+            self.dynamics_model = build_dynamics_model(mpc.model_hidden, init, A, X).to(self.device)
+            self.trained["dynamics_model"] = mpc.model_lr
+            self.networks = (*NETWORKS, "dynamics_model")
         self.optimizer, self._views = _member_adam(
-            {n: (getattr(self, n), getattr(cfg, lr)) for n, lr in TRAINED.items()}, self.E, cfg.weight_decay)
+            {n: (getattr(self, n), lr) for n, lr in self.trained.items()}, self.E, cfg.weight_decay)
         self.replay = EnsembleReplay([g[1] for g in gens], cfg.replay_size, S, A, device=self.device)
         self.noise = OUNoise([g[2] for g in gens], dim=A, theta=cfg.ou_theta, sigma=cfg.ou_sigma, device=self.device)
         self._soft_pairs = [(t.detach(), o.detach()) for net, tnet in
@@ -202,6 +219,50 @@ class Agent:
         a = self._act(self._check("action", action, self.action_dim))
         return self.forward_model(torch.cat([*self._motion(x), a], -1)[:, None])[:, 0, ARM]
 
+    # -- the learned model, batched for planning ([E, B, ...]: B candidates per member) -------------------
+    @torch.no_grad()
+    def imagine(self, state: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        """The next state ``[E, B, 6 + extra]`` (raw units) the model predicts from ``state`` and the executable
+        ``action`` ``[E, B, 2]``: its arm and extra entries, the target unchanged. The model is the dynamics
+        model where the kind has one, else the paper's forward model."""
+        x = self._state(state)
+        if self.dynamics_model is not None:
+            return self._from_motion(self._motion_x(x) + self.dynamics_model(
+                torch.cat([*self._motion(x), self._act(action)], -1)), state)
+        y = self.forward_model(torch.cat([*self._motion(x), self._act(action)], -1))
+        parts = [y[..., ARM], state[..., TARGET]]
+        if self.sizes.extra_dim:
+            parts.append(self._forward_extra(y) * self.extra_scale)
+        return torch.cat(parts, -1)
+
+    def _motion_x(self, x: torch.Tensor) -> torch.Tensor:
+        """The motion ``[..., 4 + extra]`` of a network-input state ``x`` (normalized)."""
+        return torch.cat(self._motion(x), -1)
+
+    def _from_motion(self, m: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
+        """A raw state ``[..., 6 + extra]`` from a normalized motion ``m`` and ``state``'s target."""
+        arm = m[..., ARM]
+        if self.cfg.normalize_inputs:
+            half = self.plane_scale / 2
+            arm = arm * half + half
+        parts = [arm, state[..., TARGET]]
+        if self.sizes.extra_dim:
+            extra = m[..., MOTION_EXTRA]
+            parts.append(extra * self.extra_scale if self.cfg.normalize_inputs else extra)
+        return torch.cat(parts, -1)
+
+    @torch.no_grad()
+    def habit_u(self, state: torch.Tensor) -> torch.Tensor:
+        """The actor's tanh output ``[E, B, 2]`` in ``state`` ``[E, B, 6 + extra]`` (:meth:`to_action` makes it
+        an action)."""
+        return self.actor(self._state(state))
+
+    @torch.no_grad()
+    def value(self, state: torch.Tensor) -> torch.Tensor:
+        """The critic's ``Q(s, pi(s))`` ``[E, B]`` (cm of return) in ``state`` ``[E, B, 6 + extra]``."""
+        x = self._state(state)
+        return self.critic(x, self._act(self.to_action(self.actor(x), state)))
+
     @torch.no_grad()
     def td_error(self, s: torch.Tensor, a: torch.Tensor, r: torch.Tensor, s2: torch.Tensor,
                  done: torch.Tensor) -> torch.Tensor:
@@ -236,15 +297,42 @@ class Agent:
         losses = self.gradients(self.replay.sample(self.cfg.batch_size, members), members)
         self.optimizer.step()
         self._soft_update(members)
+        for _ in range(self.model_updates):
+            self._model_step(self.replay.sample(self.cfg.batch_size, members), members)
         keep = torch.zeros(self.E, dtype=torch.bool, device=self.device)
         keep[members] = True
         return {name: torch.where(keep, loss, nan) for name, loss in losses.items()}
+
+    def _model_step(self, batch: dict[str, torch.Tensor], members: Sequence[int]) -> None:
+        """One more Adam step of the dynamics model alone on ``batch`` for ``members`` (``mpc.model_updates``):
+        every other network's per-member views get no gradient, so Adam leaves them untouched."""
+        for views in self._views.values():
+            for vs in views:
+                for v in vs:
+                    v.grad = None
+        self.dynamics_model.zero_grad(set_to_none=True)
+        with self._autocast():
+            loss = self._dynamics_loss(self._state(batch["state"]), batch["action"], batch["next_state"])
+        weight = torch.zeros(self.E, device=self.device)
+        weight[list(members)] = 1.0
+        (loss * weight).sum().backward()
+        on = set(members)
+        for p, vs in zip(self.dynamics_model.parameters(), self._views["dynamics_model"]):
+            for k, (v, g) in enumerate(zip(vs, p.grad.unbind(0))):
+                v.grad = g if k in on else None
+        self.optimizer.step()
+
+    def _dynamics_loss(self, x: torch.Tensor, a: torch.Tensor, s2: torch.Tensor) -> torch.Tensor:
+        """The dynamics model's error ``[E]`` on the motion's change (normalized: every entry of order 1) from
+        the network-input state ``x`` and the action ``a`` to the raw next state ``s2``."""
+        change = self.dynamics_model(torch.cat([*self._motion(x), self._act(a)], -1)).float()
+        return (change - (self._motion_x(self._state(s2)) - self._motion_x(x))).pow(2).mean((1, 2))
 
     def gradients(self, batch: dict[str, torch.Tensor], members: Sequence[int]) -> dict[str, torch.Tensor]:
         """Losses ``[E]`` on ``batch`` and, by autograd, their gradients: each network's ``.grad``
         (``[E, ...]``), and on the optimizer's per-member views those of ``members`` (None for the
         others, so Adam leaves them untouched)."""
-        for net in TRAINED:
+        for net in self.trained:
             getattr(self, net).zero_grad(set_to_none=True)
         with self._autocast():
             losses = self.losses(batch)
@@ -289,10 +377,13 @@ class Agent:
             arm_next = self.forward_model(torch.cat([*self._motion(x), self._act(a)], -1)).float()
         with self._precision("inverse_model"):
             u_inv = self.inverse_model(self._inverse_input(x, self._pos(s2[..., END]))).float()
-        return {"critic": (y - q).pow(2).mean(1),
-                "actor": actor_loss,
-                "forward": self._forward_error(arm_next, s2).pow(2).mean((1, 2)),
-                "inverse": (self.to_action(u_inv, s) - b["executed_action"]).pow(2).mean((1, 2))}
+        out = {"critic": (y - q).pow(2).mean(1),
+               "actor": actor_loss,
+               "forward": self._forward_error(arm_next, s2).pow(2).mean((1, 2)),
+               "inverse": (self.to_action(u_inv, s) - b["executed_action"]).pow(2).mean((1, 2))}
+        if self.dynamics_model is not None:
+            out["dynamics"] = self._dynamics_loss(x, a, s2)
+        return out
 
     def _forward_error(self, y: torch.Tensor, s2: torch.Tensor) -> torch.Tensor:
         """The forward model's error per output ``[E,B,4 + extra]``: the arm in cm; each extra entry normalized
@@ -319,7 +410,7 @@ class Agent:
         """Everything needed to continue bit-exactly; only tensors, lists, dicts, numbers, strings."""
         return {"seeds": list(self.seeds), "precision": self.precision,
                 "networks": {n: {k: v.detach().clone() for k, v in getattr(self, n).state_dict().items()}
-                             for n in NETWORKS},
+                             for n in self.networks},
                 "optimizer": self.optimizer.state_dict(), "replay": self.replay.state_dict(),
                 "noise": self.noise.state_dict()}
 
@@ -327,7 +418,7 @@ class Agent:
         if list(d["seeds"]) != self.seeds:
             raise ValueError(f"state is for seeds {list(d['seeds'])}, this agent has {self.seeds}")
         with torch.no_grad():
-            for n in NETWORKS:
+            for n in self.networks:
                 net = getattr(self, n)
                 for k, v in net.state_dict().items():
                     src = d["networks"][n][k]

@@ -27,7 +27,8 @@ import numpy as np
 import torch
 
 from apac_mj.agent.arbitration import blend, ema, step_signals
-from apac_mj.rules import ReliabilityParams, SpeedAccuracyParams, UncertaintyParams, VisionAwareParams
+from apac_mj.rules import (MPCParams, ReliabilityParams, SpeedAccuracyParams, UncertaintyParams,
+                           ValueOfComputationParams, VisionAwareParams)
 from apac_mj.types import END, HABIT_COST, PLANNING_COST, TARGET, ArbitrationContext, Arbitrator, Decision, StepInfo
 
 if TYPE_CHECKING:
@@ -261,6 +262,100 @@ class SpeedAccuracyArbitrator(RunningArbitrator):
                   "planning_gain": gain,
                   "planning_extra_cost": torch.full((ctx.E,), float(PLANNING_COST - HABIT_COST))}
         return Decision((gain <= PLANNING_COST - HABIT_COST) & ~self.planning_phase(ctx), inputs)
+
+
+#: Bin edges of the habit's imagined final distance, in zone radii, in the graded rule's gain table: inside
+#: the zone, just outside it (where the habit traps lie: the hand stalls 0.64 cm from a 0.5 cm zone), further.
+VOC_EDGES = (1.0, 2.0, 4.0, 8.0, 16.0)
+
+
+class ValueOfComputationArbitrator(RunningArbitrator):
+    """A graded arbitration: whether and how long to plan, by the value of computation (Keramati et al.
+    2011, 2016; Hamrick et al. 2017; Lu et al. 2019's adaptive online planning).
+
+    Every step the habit's sequence is imagined through the forward model (the planner's probe:
+    :class:`~apac_mj.types.HabitProbe`, one candidate, the cheapest look ahead). Its imagined final distance
+    to the target (in zone radii, bins :data:`VOC_EDGES`) indexes a per-member table ``G[b, k]``: the running
+    mean of what ``k`` planning iterations gained over the habit's value (cm of return), measured on every
+    planned step (the anytime planner reports its best value after each iteration). Their cost is the time
+    they take, priced as the reward rate of a reach: the current distance to the target per movement step
+    (Keramati et al.'s opportunity cost of time), ``d * k * c / voc.decisions_per_step`` with ``c`` one
+    iteration's time in habit decisions (``voc.iteration_cost``, or this run's measured ratio). The rule
+    plans for the ``k`` with the largest positive net value ``G[b, k] - cost(k)``, else the habit acts.
+    An entry never measured is optimistic (full planning). In the planning phase (``planning_episodes``)
+    every step plans at the full budget.
+    """
+
+    STATS = {"gain": Stat(float("nan"), (len(VOC_EDGES) + 1, 64)),
+             "habit_seconds": Stat(float("nan")), "iteration_seconds": Stat(float("nan"))}
+
+    def __init__(self, cfg: AgentConfig) -> None:
+        params: ValueOfComputationParams = cfg.params[ValueOfComputationParams.table]
+        super().__init__(cfg, params.window)
+        self.params, self.K = params, cfg.params[MPCParams.table].iterations
+        if self.K > self.STATS["gain"].shape[1]:
+            raise ValueError(f"the graded rule keeps gains for at most {self.STATS['gain'].shape[1]} iterations; "
+                             f"agent.mpc.iterations = {self.K}")
+
+    def bins(self, final_distance: torch.Tensor, zone_radius: float) -> torch.Tensor:
+        return torch.bucketize(final_distance.float().cpu() / zone_radius, torch.tensor(VOC_EDGES))
+
+    def iteration_cost(self, E: int) -> torch.Tensor:
+        """``[E]`` one iteration's time in habit decisions: fixed, or this run's measured ratio (fixed until
+        both times were measured)."""
+        fixed = torch.full((E,), float(self.params.iteration_cost))
+        if self.params.cost == "fixed":
+            return fixed
+        ratio = self.stat("iteration_seconds", E) / self.stat("habit_seconds", E)
+        return torch.where(torch.isfinite(ratio), ratio, fixed)
+
+    def use_habit(self, ctx: ArbitrationContext) -> Decision:
+        if ctx.habit_probe is None:
+            raise ValueError("the graded rule (apac_voc) needs a model planner's habit probe: its kind's planner "
+                             "must be 'mpc'")
+        probe = ctx.habit_probe()
+        b = self.bins(probe.final_distance, ctx.zone_radius)
+        gain = self.stat("gain", ctx.E)[torch.arange(ctx.E), b, :self.K]
+        k = torch.arange(1, self.K + 1, dtype=torch.float32)
+        distance = torch.linalg.vector_norm(ctx.state[:, END] - ctx.state[:, TARGET], dim=1).float().cpu()
+        steps = self.iteration_cost(ctx.E)[:, None] * k / self.params.decisions_per_step  # movement steps of time
+        cost = distance[:, None] * steps
+        net = torch.where(torch.isnan(gain), float("inf"), gain - cost)
+        best_net, best = net.max(1)
+        planning = self.planning_phase(ctx)
+        plan = planning | (best_net > 0)
+        iterations = torch.where(planning | torch.isinf(best_net), self.K, best + 1) * plan
+        rows = torch.arange(ctx.E)
+        inputs = {"habit_final_distance": probe.final_distance.float().cpu(), "habit_value": probe.value.float().cpu(),
+                  "distance": distance, "expected_gain": gain[rows, best], "planning_cost": cost[rows, best],
+                  "iterations": iterations.float()}
+        return Decision(~plan, inputs, iterations)
+
+    def observe(self, info: StepInfo, mask: np.ndarray, adapt: bool = True) -> None:
+        """Planned steps teach the gain table (``adapt``): each iteration's measured gain over the habit, in the
+        bin the step was decided in; the time statistics learn from every step's measured shares."""
+        if not adapt or info.plan_gains is None:
+            return
+        E, m = len(mask), _mask(mask)
+        b = self.bins(torch.as_tensor(info.arbitration["habit_final_distance"]), info.zone_radius)
+        table, rows = self.stat("gain", E).clone(), torch.arange(E)
+        measured = torch.as_tensor(info.plan_gains, dtype=torch.float32)
+        entry = table[rows, b, :measured.shape[1]]
+        table[rows, b, :measured.shape[1]] = torch.where(
+            m[:, None] & torch.isfinite(measured),
+            torch.where(torch.isnan(entry), measured, entry + self.rate * (measured - entry)), entry)
+        self.stats["gain"] = table
+        self._learn_times(info, m)
+
+    def _learn_times(self, info: StepInfo, m: torch.Tensor) -> None:
+        E = len(m)
+        seconds = torch.as_tensor(info.decision_seconds, dtype=torch.float32)
+        iters = torch.as_tensor(info.plan_iterations, dtype=torch.float32)
+        habit_s = self.stat("habit_seconds", E)
+        self.stats["habit_seconds"] = ema(habit_s, seconds, self.rate, m & (iters == 0))
+        per_iteration = (seconds - torch.nan_to_num(habit_s)) / iters.clamp(min=1)
+        self.stats["iteration_seconds"] = ema(self.stat("iteration_seconds", E), per_iteration, self.rate,
+                                              m & (iters > 0))
 
 
 class VisionAwareArbitrator(Arbitrator):

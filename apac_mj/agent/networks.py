@@ -26,6 +26,7 @@ ACTIVATIONS: dict[str, Callable[[torch.Tensor], torch.Tensor]] = {
     "relu": torch.relu_,
     "sigmoid": torch.sigmoid_,
     "tanh": torch.tanh_,
+    "linear": lambda x: x,
 }
 
 
@@ -150,6 +151,14 @@ def build_forward_model(hidden: Sequence[int], scale: float, gens: Sequence[torc
     the paper's tasks) + action (2) -> sigmoid -> sigmoid -> (4 + extra) x sigmoid x scale: the next arm (cm)
     and, where observed, the next extra entries (the agent maps them back, ``Agent._forward_extra``)."""
     return EnsembleMLP([4 + extra_dim + action_dim, *hidden, 4 + extra_dim], "sigmoid", "sigmoid", scale, gens)
+
+
+def build_dynamics_model(hidden: Sequence[int], gens: Sequence[torch.Generator], action_dim: int = 2,
+                         extra_dim: int = 0) -> EnsembleMLP:
+    """The planning system's dynamics model (beyond the paper; kinds that plan through a model): the motion
+    [end, elbow, extra] and the action, normalized (6 + extra) -> relu -> relu -> the motion's change over the
+    step (4 + extra), normalized, linear: a residual model, as model-based RL's dynamics models are."""
+    return EnsembleMLP([4 + extra_dim + action_dim, *hidden, 4 + extra_dim], "relu", "linear", 1.0, gens)
 
 
 def build_inverse_model(hidden: Sequence[int], gens: Sequence[torch.Generator], action_dim: int = 2,

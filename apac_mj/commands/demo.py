@@ -8,9 +8,11 @@ A small, real version of the paper's study on this machine (no service needed):
 DDPG, SPAC and APAC trained on changing_target for a few seeds and a few hundred
 episodes (preset tasks/presets/demo.toml), tested on the angle-grid targets and
 under occluded vision, reported as the paper's figures and key-number table,
-and three episodes of the trained APAC recorded with Rerun. About 7 minutes on a
-2-core CPU. Re-running resumes where it stopped; it prints where the figures,
-the table and the recording are.
+and three episodes of the trained APAC recorded with Rerun. About 7 minutes of
+one CPU core (420 s of CPU time on the 2-core Intel Xeon development machine;
+the cells run one after another, so the wall time grows with the load: 406 s
+in one run there, 13.3 min in another at load average 5-10). Re-running resumes where it
+stopped; it prints where the figures, the table and the recording are.
 
 examples:
   apac-mj demo

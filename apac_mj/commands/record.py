@@ -50,14 +50,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import torch
-
     from apac_mj.commands.hints import results_dir_hint
     from apac_mj.recording.record import record
+    from apac_mj.util.threads import set_threads
 
     if args.run is not None and (hint := results_dir_hint(args.run, "record --run")) is not None:
         raise FileNotFoundError(f"--run: {hint}")
-    torch.set_num_threads(min(torch.get_num_threads(), 2))
+    set_threads()  # 1, as train and evaluate (apac_mj/util/threads.py)
     r = record(args.out, run=args.run, task=args.task, agent=args.agent, seed=args.seed, member=args.member,
                episodes=args.episodes, as_episode=args.as_episode, video=args.video, fps=args.fps)
     size = r.rrd.stat().st_size

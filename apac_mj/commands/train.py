@@ -24,9 +24,11 @@ link lengths, target, mean losses of the four networks), checkpoints/ (periodic 
 DONE when finished. Files get the usual permissions (0666 minus the umask). Re-running the same
 command resumes from the last checkpoint with the same numbers as an uninterrupted run, and says so;
 on a finished run it does nothing and says so. A larger --episodes (everything else the same)
-extends a finished run, again with the numbers of an uninterrupted run of that length; any other
-difference for an existing directory is an error. A damaged checkpoints/latest.pt falls back, with a
-warning, to checkpoints/previous.pt. Everything is checked before the directory is created.
+extends a finished run, again with the numbers of an uninterrupted run of that length (each seed's
+episodes; metrics.parquet lists rows in the order episodes end, which differs from that run's, so
+compare by seed and episode); any other difference for an existing directory is an error. A damaged
+checkpoints/latest.pt falls back, with a warning, to checkpoints/previous.pt. Everything is checked
+before the directory is created.
 One process writes a run directory at a time (RUN_DIR/.lock; a second is refused, naming the first's
 PID). Ctrl-C and SIGTERM say what the last checkpoint holds; the same command resumes from it. A
 config.json or metrics.parquet that disagrees with the checkpoint is named (docs/reliability.md).
@@ -39,6 +41,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     from apac_mj import kinds
     from apac_mj.config import ACTUATIONS, PRECISION_REQUESTS, AgentConfig, TrainConfig
     from apac_mj.util.overrides import field_docs, field_help
+    from apac_mj.util.threads import DEFAULT_THREADS
 
     d, doc = TrainConfig(), field_docs(TrainConfig)
     p = sub.add_parser("train", help="train an ensemble of seeds on a task (resumable run directory)",
@@ -55,6 +58,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="agent kind (apac_mj.kinds): ddpg: always the actor; spac: always the inverse model; "
                         "apac: the paper's arbitrator decides; apac_uncertainty, apac_reliability, "
                         "apac_speed_accuracy, apac_vision: the rules beyond the paper (docs/arbitrators.md); "
+                        "spac_mpc, apac_mpc, apac_voc: planning several steps through the learned model, always, "
+                        "by the delta rule, or for as long as it is worth its cost (docs/agent.md); "
                         f"or one registered from your code (default {kinds.DEFAULT})")
     p.add_argument("--seeds", default=None,
                    help="seeds: N (the seeds 0..N-1), a range '0-9' (inclusive), a list '0,3,5', one seed k as "
@@ -76,9 +81,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="set a TrainConfig or AgentConfig field (listed below), repeatable: batch_size=128, "
                         "ou_sigma=5, actor_hidden=64,64, agent.babbling_episodes=20, task_overrides={at_limit=\"unbounded\"}")
-    p.add_argument("--threads", type=int, default=1,
-                   help="torch CPU threads (default 1: these networks are small, and on a busy 2-core machine "
-                        "2 threads measured 10-25x slower; raise it for E >= 10 on free cores)")
+    p.add_argument("--threads", type=int, default=DEFAULT_THREADS,
+                   help=f"torch CPU threads (default {DEFAULT_THREADS}, as apac_mj.train: these networks are small, "
+                        "and on a busy 2-core machine 2 threads measured 10-25x slower; raise it for E >= 10 on "
+                        "free cores; apac_mj/util/threads.py)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -139,20 +145,19 @@ def run_summary(run_dir: RunDir) -> dict:
 def run(args: argparse.Namespace) -> int:
     import contextlib
 
-    import torch
-
     from apac_mj.run.run_dir import RunDir
     from apac_mj.run.trainer import train
+    from apac_mj.util.threads import set_threads
 
     if args.threads < 1:
         raise ValueError(f"--threads must be >= 1, got {args.threads}")
     cfg = train_config(args)
-    torch.set_num_threads(args.threads)
+    set_threads(args.threads)  # the whole command (the recorder's renders too), as train() does for its call
     run_dir = RunDir(args.out)
     before = run_dir.metric_rows()
     with contextlib.ExitStack() as stack:
         hooks = [] if args.record_every is None else [stack.enter_context(recorder(args.out, args.record_every, cfg))]
-        train(cfg, run_dir.path, progress=not args.no_progress, hooks=hooks)
+        train(cfg, run_dir.path, progress=not args.no_progress, hooks=hooks, threads=args.threads)
     trained = run_dir.metric_rows() != before
     summary = {"run_dir": str(run_dir.path), "status": "trained" if trained else "already finished; nothing trained",
                **run_summary(run_dir)}

@@ -59,11 +59,24 @@ _IN_CELL = False
 def _worker_init(parent: int) -> None:
     """Set up a pool worker: SIGINT and SIGTERM interrupt its cell as Ctrl-C does (an idle worker just exits),
     and it gets SIGTERM when ``parent`` (the grid's main process) dies. A SIGINT the grid ignores (a job
-    started in the background by a shell) stays ignored, as it does for the grid itself."""
+    started in the background by a shell) stays ignored, as it does for the grid itself. Its progress bars
+    share a thread lock (:func:`_bars_without_semaphore`)."""
     if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:
         signal.signal(signal.SIGINT, _on_interrupt)
     signal.signal(signal.SIGTERM, _on_interrupt)
     _die_with_parent(parent)
+    _bars_without_semaphore()
+
+
+def _bars_without_semaphore() -> None:
+    """tqdm's bars lock a multiprocessing RLock, which in a spawned worker is a named semaphore the resource
+    tracker holds until the worker's exit handlers release it: a worker killed with -9 (or ended by
+    ``os._exit`` when its cell is interrupted) never runs them, and the grid's exit then printed
+    "resource_tracker: There appear to be 2 leaked semaphore objects". The lock is the worker's own (no other
+    process shares it), so a thread lock does the same work and leaves nothing behind."""
+    from tqdm import tqdm as std_tqdm
+
+    std_tqdm.set_lock(threading.RLock())
 
 
 def _on_interrupt(signum: int, frame: object) -> None:

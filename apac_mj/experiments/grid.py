@@ -156,9 +156,9 @@ def check_grid(preset: Preset, results: Path) -> dict[str, tuple[str, str]]:
 
 def run_cell(cell_dir: str | Path, progress: bool = True, threads: int = 1) -> dict[str, Any]:
     """Train (or resume) and test one prepared cell with ``threads`` torch threads; returns its status."""
-    import torch
+    from apac_mj.util.threads import set_threads
 
-    torch.set_num_threads(threads)
+    set_threads(threads)  # the worker process's, for the whole cell (train and evaluate keep it: threads=)
     cell_dir = Path(cell_dir)
     start = time.perf_counter()
     with RunDir(cell_dir).lock():  # this process is the cell's one writer while it trains and tests it
@@ -168,16 +168,16 @@ def run_cell(cell_dir: str | Path, progress: bool = True, threads: int = 1) -> d
         if not cell_done(cell_dir):
             from apac_mj.run.trainer import train
 
-            train(train_config_from_dict(info["train_config"]), cell_dir, progress=progress)
+            train(train_config_from_dict(info["train_config"]), cell_dir, progress=progress, threads=threads)
             if info["protocols"]:
-                _evaluate(cell_dir, tuple(info["protocols"]), info["test_limit"])
+                _evaluate(cell_dir, tuple(info["protocols"]), info["test_limit"], threads)
     return {"cell": cell_dir.name, "status": "done", "wall_s": round(time.perf_counter() - start, 3)}
 
 
-def _evaluate(cell_dir: Path, protocols: tuple[str, ...], limit: int) -> None:
+def _evaluate(cell_dir: Path, protocols: tuple[str, ...], limit: int, threads: int = 1) -> None:
     from apac_mj.run.evaluate import evaluate
 
-    evaluate(cell_dir, protocols=protocols, limit=limit or None)
+    evaluate(cell_dir, protocols=protocols, limit=limit or None, threads=threads)
 
 
 # -- the grid ------------------------------------------------------------------------

@@ -14,9 +14,12 @@ several episodes play one after another.
 from __future__ import annotations
 
 import dataclasses
+import errno
 import os
+import shutil
 import sys
 import tempfile
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -76,6 +79,12 @@ HAND_FORCE = "plane/hand_force"
 LOAD = "series/plant/load_kg"
 HAND_FORCE_SIZE = "series/plant/hand_force_N"
 JOINT_VELOCITY = "series/plant/joint_velocity"
+#: A model planner's plan (kinds with an MPC planner): the chosen sequence's imagined hand, a few sampled
+#: candidates', the iterations run and the decision's measured time.
+PLAN = "plane/plan/chosen"
+PLAN_CANDIDATES = "plane/plan/candidates"
+PLAN_ITERATIONS = "series/planning/iterations"
+DECISION_MS = "series/planning/decision_ms"
 #: Entity paths a recording of a task with dynamics adds.
 PLANT_PATHS = (ARM_COMMANDED, HAND_FORCE, LOAD, HAND_FORCE_SIZE, f"{JOINT_VELOCITY}/shoulder",
                f"{JOINT_VELOCITY}/elbow")
@@ -141,6 +150,13 @@ class StepRecord:
     joint_velocities: np.ndarray = dataclasses.field(default_factory=lambda: np.full(2, np.nan))
     hand_force: np.ndarray = dataclasses.field(default_factory=lambda: np.full(2, np.nan))
     load: float = float("nan")
+    #: A model planner's imagined hand along its chosen plan ``[H + 1, 2]`` and a few candidates'
+    #: ``[C, H + 1, 2]`` (cm), where the member planned at this step; None: no plan.
+    plan_hand: np.ndarray | None = None
+    plan_candidates: np.ndarray | None = None
+    #: Planning iterations run for the decision (0: the habit acted; NaN: not recorded) and its measured time (ms).
+    plan_iterations: float = float("nan")
+    decision_ms: float = float("nan")
 
     def with_plant(self, physics: Any) -> "StepRecord":
         """This record with the plant's readings from ``physics`` (a ``planar_arm.Physics``); unchanged for
@@ -159,6 +175,8 @@ class StepRecord:
         def at(name: str) -> Any:
             return np.asarray(getattr(info, name))[member]
 
+        iterations = float("nan") if info.plan_iterations is None else float(info.plan_iterations[member])
+        planned = info.plan is not None and iterations > 0
         return cls(
             episode=int(at("episode")), step=int(at("step")),
             true_arm=_f64(at("true_arm")), joint_angles=_f64(at("joint_angles")),
@@ -168,6 +186,10 @@ class StepRecord:
             vision=bool(at("vision")), reached=bool(at("reached")), done=bool(at("done")),
             estimated_state=_f64(np.asarray(info.next_state)[member, POSITIONS]),  # not the plant's extra
             arbitration={k: float(np.asarray(v)[member]) for k, v in getattr(info, "arbitration", {}).items()},
+            plan_hand=_f64(info.plan["hand"][member]) if planned else None,
+            plan_candidates=_f64(info.plan["candidates"][member]) if planned else None,
+            plan_iterations=iterations,
+            decision_ms=float("nan") if info.decision_seconds is None else 1e3 * float(info.decision_seconds[member]),
         )
 
 
@@ -213,6 +235,7 @@ def default_blueprint(plane_size: Sequence[float] = (30.0, 30.0)) -> rrb.Bluepri
                            name="plant: joint velocities (deg/s), field force at the hand (N), hand load (kg)"),
         view("link lengths (cm)", L1, L2),
         view("kinematics check: max |MuJoCo - motion function| (cm)", KINEMATICS_ERROR),
+        view("planning: iterations run; the decision's measured time (ms)", PLAN_ITERATIONS, DECISION_MS),
         name="details",
     )
     return rrb.Blueprint(
@@ -222,7 +245,8 @@ def default_blueprint(plane_size: Sequence[float] = (30.0, 30.0)) -> rrb.Bluepri
                 # Origin "/" so that the plane entity's y-flip applies (a view's own origin transform is ignored).
                 rrb.Spatial2DView(origin="/", contents=f"+ {PLANE}/**",
                                   name="plane (cm): MuJoCo black, motion function orange, forward model dashed "
-                                       "green, commanded dashed purple, field force red",
+                                       "green, commanded dashed purple, field force red, the MPC's plan red "
+                                       "(candidates grey)",
                                   visual_bounds=rrb.VisualBounds2D(x_range=[0, w], y_range=[0, h])),
                 arbitration,
                 column_shares=[1, 1.1, 1.3],
@@ -404,6 +428,9 @@ class Recording:
         if np.all(np.isfinite(rec.commanded_angles)):
             end, elbow = motion_function(*rec.commanded_angles, *rec.link_lengths, self.origin)
             self._buffer(ARM_COMMANDED, e, k, _dashed(_arm_strip(np.concatenate([end, elbow]), self.origin)))
+        if np.isfinite(rec.plan_iterations):  # an agent with a planner acted: its plan, or none (an empty batch)
+            self._buffer(PLAN, e, k, [] if rec.plan_hand is None else [rec.plan_hand])
+            self._buffer(PLAN_CANDIDATES, e, k, [] if rec.plan_candidates is None else list(rec.plan_candidates))
         if np.all(np.isfinite(rec.hand_force)):
             hand = rec.true_arm[:2]
             force = [np.array([hand, hand + FORCE_CM_PER_N * rec.hand_force])] if np.any(rec.hand_force) else []
@@ -420,6 +447,7 @@ class Recording:
             **{f"{ARBITRATION_INPUTS}/{name}": value for name, value in rec.arbitration.items()},
             LOAD: rec.load, HAND_FORCE_SIZE: float(np.hypot(*rec.hand_force)),
             f"{JOINT_VELOCITY}/shoulder": rec.joint_velocities[0], f"{JOINT_VELOCITY}/elbow": rec.joint_velocities[1],
+            PLAN_ITERATIONS: rec.plan_iterations, DECISION_MS: rec.decision_ms,
         }
         for path, value in values.items():
             if np.isfinite(value):
@@ -452,19 +480,45 @@ class Recording:
         self._rows = {}
 
     def close(self, complete: bool = True) -> Path:
-        """Send the buffered rows, mark the file complete or not, flush, close and rename it: to ``path``
-        (complete) or ``NAME.partial.rrd``; return where it went."""
+        """Send the buffered rows, mark the file complete or not, flush, close, check and rename it: to ``path``
+        (complete) or ``NAME.partial.rrd``; return where it went.
+
+        A file that cannot be finished (a full disk, a writer that died or hangs: Rerun's writer only logs
+        its write errors) is removed with its temporary, and the error says so: an OSError ENOSPC naming
+        ``path`` when the disk is full, else a :class:`RecordingError`. Nothing is renamed then, so the file
+        at ``path`` (or ``NAME.partial.rrd``) is always one that reads to its end."""
         if self.writing is None:
             return self.path
-        self.flush()
-        self._stream.send_property("status", rr.AnyValues(complete=complete, episodes=self.episodes,
-                                                          frames=self.frames))
-        self._stream.flush()
-        self._stream.disconnect()
         final = self.path if complete else partial_path(self.path)
+        try:
+            self._finish(complete)
+        except Exception as e:  # noqa: BLE001 - Rerun raises RuntimeError, the reader RuntimeError or ValueError
+            error = write_error(self.path, self.writing, e)
+            self._discard()
+            raise error from e
+        except BaseException:  # Ctrl-C or SIGTERM while the last rows are written: no half file is kept
+            self._discard()
+            raise
         os.replace(self.writing, final)
         self.writing = None
         return final
+
+    def _finish(self, complete: bool) -> None:
+        """Write the last rows and the status, flush within FLUSH_SECONDS, close the stream, read the file back."""
+        self.flush()
+        self._stream.send_property("status", rr.AnyValues(complete=complete, episodes=self.episodes,
+                                                          frames=self.frames))
+        self._stream.flush(timeout_sec=FLUSH_SECONDS)
+        self._stream.disconnect()
+        check_written(self.writing, complete)
+
+    def _discard(self) -> None:
+        """Remove the temporary of a recording that cannot be finished (the stream's file handle closed first)."""
+        writing, self.writing = self.writing, None
+        try:
+            self._stream.disconnect()
+        finally:
+            writing.unlink(missing_ok=True)
 
     def __enter__(self) -> "Recording":
         return self
@@ -473,11 +527,59 @@ class Recording:
         self.close(complete=exc_type is None)
 
 
+class RecordingError(RuntimeError):
+    """A recording that could not be written to its end (other than a full disk, an OSError ENOSPC); the message
+    names the file and the cause. Nothing was left under its name, and no temporary."""
+
+
+#: At most this long (s) for a closing recording's last rows to reach its file: a writer that died or hangs (a
+#: full disk) is an error within seconds, not a wait without end (a healthy flush of BATCH_BYTES takes < 1 s).
+FLUSH_SECONDS = 20.0
+#: A file system with less than this free (bytes) after a failed write is full (the write took what was left).
+FULL_BELOW = 1 << 20
+
+
+def check_written(path: Path, complete: bool) -> None:
+    """The recording at ``path`` reads back to its end and its status says ``complete`` (Rerun's writer only
+    logs a failed write, so a full disk leaves a file that does not); else a RuntimeError saying what is wrong."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # "no footer": the reader's warning for a cut file, said below
+            status = recording_complete(path)
+    except (RuntimeError, ValueError, OSError) as e:
+        raise RuntimeError(f"the file does not read back ({e})") from None
+    if status is not complete:
+        raise RuntimeError("the file ends before its last rows (its status is missing)")
+
+
+def write_error(path: Path, writing: Path, cause: BaseException) -> Exception:
+    """The error for a recording of ``path`` (written at ``writing``) that could not be finished: an OSError
+    ENOSPC naming ``path`` if the file system is full now, else a :class:`RecordingError` with ``cause``."""
+    try:
+        free = shutil.disk_usage(writing.parent).free
+    except OSError:
+        free = None
+    kept = f"; {path} was left as it was and no temporary file remains"
+    if free is not None and free < FULL_BELOW:
+        return OSError(errno.ENOSPC, f"{os.strerror(errno.ENOSPC)}: {free} bytes free after writing "
+                                     f"{_size(writing)} of the recording{kept}", str(path))
+    return RecordingError(f"the recording {path} could not be written to its end ({type(cause).__name__}: "
+                          f"{cause}){kept}")
+
+
+def _size(path: Path) -> str:
+    try:
+        return f"{path.stat().st_size / 1e6:.2f} MB"
+    except OSError:
+        return "part"
+
+
 #: (color, radius cm, draw order) of the line-strip entities, logged once as static components.
 _STRIP_STYLES = {
     ARM_MUJOCO: (_BLACK, 0.3, 20.0), ARM_MOTION_FUNCTION: (_ORANGE, 0.1, 21.0),
     ARM_FORWARD_MODEL: (_GREEN, 0.15, 22.0), PATH: (_BLUE, 0.08, 15.0),
     ARM_COMMANDED: (_PURPLE, 0.12, 19.0), HAND_FORCE: (_RED, 0.12, 23.0),
+    PLAN: (_RED, 0.12, 18.0), PLAN_CANDIDATES: (_GREY, 0.04, 16.0),
 }
 
 
@@ -595,7 +697,7 @@ def step_record_from_env(env: control.Environment, episode: int, timestep: dm_en
         reward=float("nan") if first else float(timestep.reward), distance=distance, delta=delta, habit=habit,
         predicted_arm=np.full(4, np.nan) if predicted_arm is None else _f64(predicted_arm),
         vision=bool(timestep is None or timestep.observation["vision"][0] > 0),
-        reached=distance <= task.spec.zone_radius, done=not first and timestep.last(),
+        reached=bool(task.reached(physics)), done=not first and timestep.last(),
     ).with_plant(physics)
 
 
@@ -683,11 +785,14 @@ class EpisodeRecorder(Hook):
                 self._close_recording()
 
     def close(self, complete: bool = True) -> None:
-        """Close the open recording (``complete=False``: it becomes ``NAME.partial.rrd``) and the renderer."""
-        self._close_recording(complete)
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
+        """Close the open recording (``complete=False``: it becomes ``NAME.partial.rrd``) and the renderer (also
+        when the recording cannot be finished: :meth:`Recording.close`)."""
+        try:
+            self._close_recording(complete)
+        finally:
+            if self._renderer is not None:
+                self._renderer.close()
+                self._renderer = None
 
     # -- internals ------------------------------------------------------------------------------
     def _render(self, physics: Any) -> np.ndarray:
@@ -719,13 +824,18 @@ class EpisodeRecorder(Hook):
             self.frames.append(frame)
 
     def _close_recording(self, complete: bool = True) -> None:
-        if self._recording is not None:
-            final = self._recording.close(complete)
-            if final != self._recording.path:
-                self.files[-1] = final
-                print(f"the recording was interrupted: its episodes so far are in {final} (marked partial); "
-                      f"{self._recording.path} was left as it was", file=sys.stderr)
-            self._recording = None
+        recording, self._recording = self._recording, None  # dropped also when it cannot be finished
+        if recording is None:
+            return
+        try:
+            final = recording.close(complete)
+        except BaseException:
+            self.files.pop()  # not written
+            raise
+        if final != recording.path:
+            self.files[-1] = final
+            print(f"the recording was interrupted: its episodes so far are in {final} (marked partial); "
+                  f"{recording.path} was left as it was", file=sys.stderr)
 
     def __enter__(self) -> "EpisodeRecorder":
         return self

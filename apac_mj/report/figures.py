@@ -23,7 +23,7 @@ from apac_mj.kinematics import motion_function
 from apac_mj.report.labels import (AGENT_COLOR, AGENT_LABEL, agents, arbitrating, condition_colors, condition_label,
                                    condition_order, condition_short, condition_spec, episodes)
 from apac_mj.report.quantities import (CROSSING_WINDOW, HABIT_THRESHOLD, LATE_FRACTION, habit_crossing,
-                                      judged_reached, time_cost)
+                                      judged_reached, measured, time_cost, timed)
 from apac_mj.report.stats import BOOTSTRAP_SEED, LEVEL
 from apac_mj.suite.task_spec import TaskSpec
 from apac_mj.types import PLANNING_COST
@@ -327,22 +327,51 @@ def _mark_crossings(ax: plt.Axes, crossing: pd.DataFrame) -> None:
 
 
 def fig_steps_time(data: ReportData, path: Path) -> Path:
-    """Fig. 6: action steps per episode (top) and time with planning = 3 x habit (bottom)."""
+    """Fig. 6: action steps per episode (top) and time with planning = 3 x habit (middle); where the runs
+    measured it, the decision wall time per episode (bottom), titled with each agent's measured time per
+    planning action over that per habitual action (the key-number table's ``measured_planning_ratio``)
+    beside the paper's 3. Results without the measured columns: the top two rows only."""
     train = _train(data.metrics).copy()
     train["time"] = time_cost(train["habit_actions"], train["planning_actions"])
     agents_, conds, w = agents(train), condition_order(train["condition"]), _window(train)
-    axes = _axes(2, len(conds))
+    measured_rows = timed(train) if measured(train) else None
+    axes = _axes(2 if measured_rows is None else 3, len(conds))
     for j, cond in enumerate(conds):
         for agent in agents_:
             sel = train[(train["agent"] == agent) & (train["condition"] == cond)]
             if len(sel):
                 _line(axes[0, j], sel, "steps", w, AGENT_LABEL[agent], AGENT_COLOR[agent])
                 _line(axes[1, j], sel, "time", w, AGENT_LABEL[agent], AGENT_COLOR[agent])
+            if measured_rows is not None:
+                sel = measured_rows[(measured_rows["agent"] == agent) & (measured_rows["condition"] == cond)]
+                if len(sel):
+                    _line(axes[2, j], sel, "decision_ms", w, AGENT_LABEL[agent], AGENT_COLOR[agent])
         _style(axes[0, j], condition_label(cond), "training episode", "action steps per episode")
         _style(axes[1, j], condition_label(cond), "training episode",
                f"time per episode (habit steps; planning = {PLANNING_COST}x)")
-    return _save(axes[0, 0].figure, path, f"Fig. 6: steps and time per episode (moving average over "
-                                          f"{episodes(w)}; bold: mean over seeds, {_band_words(train)})")
+        if measured_rows is not None:
+            _style(axes[2, j], f"{condition_label(cond)}\n{ratio_words(data.table, agents_, cond)}",
+                   "training episode", "measured decision time per episode (ms)")
+    title = f"Fig. 6: steps and time per episode (moving average over {episodes(w)}; bold: mean over seeds, " \
+            f"{_band_words(train)})"
+    if measured_rows is not None:
+        title += (f"; bottom: the decisions' measured wall time per episode (habit + planning), with the measured "
+                  f"time per planning action / per habitual action (mean over seeds, last {LATE_FRACTION:.0%})")
+    return _save(axes[0, 0].figure, path, title)
+
+
+def ratio_words(table: pd.DataFrame, agents_: Sequence[str], cond: str) -> str:
+    """Each agent's measured planning/habit time per action in ``cond`` (the table's
+    ``measured_planning_ratio``; agents that never used both are left out) beside the paper's assumption."""
+    ratios = [(a, _table_mean(table, "measured_planning_ratio", a, cond)) for a in agents_]
+    shown = ", ".join(f"{AGENT_LABEL[a]} {_times(r)}" for a, r in ratios if math.isfinite(r))
+    return (f"measured planning/habit time per action: {shown or 'no agent used both'} "
+            f"(paper: {PLANNING_COST}x)")
+
+
+def _times(ratio: float) -> str:
+    """A ratio as "0.9x", "3.1x", "60x"."""
+    return f"{ratio:.0f}x" if ratio >= 10 else f"{ratio:.1f}x" if ratio >= 0.1 else f"{ratio:.2g}x"
 
 
 def fig_trajectories(data: ReportData, path: Path) -> Path:
@@ -532,8 +561,9 @@ PAPER_FIGURES = (
     FigureSpec("fig5_arbitration.png", "APAC habitual vs planning actions per episode (paper Fig. 5).",
                fig_arbitration, lambda data: bool(arbitrating(_train(data.metrics)))),
     FigureSpec("fig6_steps_time.png",
-               f"Action steps and time per episode, planning = {PLANNING_COST}x habit (paper Fig. 6).", fig_steps_time,
-               _has_training),
+               f"Action steps and time per episode, planning = {PLANNING_COST}x habit (paper Fig. 6); where the runs "
+               "measured it, the decisions' wall time per episode and each agent's measured time per planning "
+               f"action / per habitual action beside the paper's {PLANNING_COST}.", fig_steps_time, _has_training),
     FigureSpec("fig7_trajectories.png", "Reaching trajectories to the test targets (paper Fig. 7).", fig_trajectories,
                _has("grid")),
     FigureSpec("fig8_generalization.png", "Held-out region and generalization success (paper Fig. 8).",

@@ -16,6 +16,7 @@ import pandas as pd
 from apac_mj import kinds
 from apac_mj.report.labels import AGENT_LABEL, arbitrating, condition_order, condition_short, condition_spec
 from apac_mj.report.stats import interval, newcombe_interval, paired_difference
+from apac_mj.run.run_dir import TIMING_COLUMNS
 from apac_mj.types import HABIT_COST, PLANNING_COST
 
 #: Summary windows: the last LATE_FRACTION of training episodes.
@@ -47,6 +48,7 @@ PAPER = {
     ("occluded_distance_judged", "apac", "changing_target"): "~1 cm",
     ("occluded_distance_judged", "spac", "changing_target_changing_kinematics"): "~0.7 cm",
     ("occluded_distance_judged", "apac", "changing_target_changing_kinematics"): "~1.5 cm",
+    ("measured_planning_ratio", "*", "*"): f"{PLANNING_COST} (assumed, Fig. 6)",
 }
 #: Every key number: quantity -> (the paper's figure, description, unit); "%" marks a rate.
 QUANTITIES = {
@@ -58,6 +60,11 @@ QUANTITIES = {
                                f"the last {CROSSING_WINDOW} (seeds that crossed; samples: episodes run)", "episode"),
     "steps_late": ("Fig. 6", "action steps per episode, last 20% of episodes", "steps"),
     "time_late": ("Fig. 6", f"time per episode (planning = {PLANNING_COST} x habit), last 20%", "habit-step units"),
+    "decision_ms_late": ("Fig. 6", "measured decision time per episode (habit + planning), last 20%", "ms"),
+    "planning_ms_late": ("Fig. 6", "measured decision time per episode where the planner acted, last 20%", "ms"),
+    "plan_iterations_late": ("Fig. 6", "planning iterations per episode, last 20%", "iterations"),
+    "measured_planning_ratio": ("Fig. 6", "measured time per planning action / per habitual action, last 20% "
+                                f"(seeds with both; the paper assumes {PLANNING_COST}; samples: actions)", "x"),
     "generalization_targets": ("Fig. 8", "held-out-region test targets", "targets"),
     "generalization_success": ("Fig. 8", "generalization success rate (held-out region)", "%"),
     "occluded_distance": ("Fig. 9", "occluded vision: final distance to target, all episodes", "cm"),
@@ -76,7 +83,7 @@ _KEYS = ["agent", "condition", "seed"]
 
 def paper_value(quantity: str, agent: str, condition: str) -> str:
     """What the paper states for a key number ("" where it states nothing)."""
-    for key in ((quantity, agent, condition), (quantity, agent, "*"), (quantity, "*", condition)):
+    for key in ((quantity, agent, condition), (quantity, agent, "*"), (quantity, "*", condition), (quantity, "*", "*")):
         if key in PAPER:
             return PAPER[key]
     return ""
@@ -89,6 +96,36 @@ def is_rate(quantity: str) -> bool:
 def time_cost(habit_actions: pd.Series, planning_actions: pd.Series) -> pd.Series:
     """Time per episode in habit steps (a planning action costs PLANNING_COST, a habitual one HABIT_COST)."""
     return HABIT_COST * habit_actions + PLANNING_COST * planning_actions
+
+
+def measured(metrics: pd.DataFrame) -> bool:
+    """The training metrics hold the measured decision times (TIMING_COLUMNS; results from before them
+    lack the columns, and an older run extended since holds NaN in its earlier rows)."""
+    return all(c in metrics for c in TIMING_COLUMNS) and metrics["habit_seconds"].notna().any()
+
+
+def timed(metrics: pd.DataFrame) -> pd.DataFrame:
+    """The rows of ``metrics`` with measured decision times, with ``decision_ms`` (habit + planning) and
+    ``planning_ms`` (where the planner acted) per episode in ms; none where the columns are missing."""
+    if not measured(metrics):
+        return metrics.iloc[:0].assign(decision_ms=[], planning_ms=[])
+    rows = metrics.dropna(subset=list(TIMING_COLUMNS))
+    return rows.assign(decision_ms=1e3 * (rows["habit_seconds"] + rows["planning_seconds"]),
+                       planning_ms=1e3 * rows["planning_seconds"])
+
+
+def planning_ratio(metrics: pd.DataFrame) -> tuple[pd.Series, pd.Series]:
+    """The measured counterpart of the paper's PLANNING_COST per (agent, condition, seed) of the timed
+    ``metrics`` rows: (sum of planning_seconds / sum of planning_actions) / (sum of habit_seconds / sum of
+    habit_actions), i.e. the mean decision time of a planning action over that of a habitual one. NaN for a
+    seed without both kinds of action; cells where no seed has both (kinds that never arbitrate) are left
+    out. Returns (ratio, the actions behind it), indexed by agent, condition, seed."""
+    sums = metrics.groupby(_KEYS)[["habit_seconds", "planning_seconds", "habit_actions", "planning_actions"]].sum()
+    both = (sums["habit_actions"] > 0) & (sums["planning_actions"] > 0) & (sums["habit_seconds"] > 0)
+    per_habit = sums["habit_seconds"] / sums["habit_actions"].where(both)
+    ratio = (sums["planning_seconds"] / sums["planning_actions"].where(both)) / per_habit.where(both)
+    cell = ratio.notna().groupby(level=["agent", "condition"]).transform("any")
+    return ratio[cell], (sums["habit_actions"] + sums["planning_actions"])[cell].astype(float)
 
 
 def late(metrics: pd.DataFrame) -> pd.DataFrame:
@@ -169,6 +206,21 @@ def _training(main: pd.DataFrame) -> list[pd.DataFrame]:
         rows.append(_q("habit_crossing_episode", crossing["episode"], crossing["episodes"]))
     if "estimate_error" in lt and lt["estimate_error"].notna().any():  # results from before it lack the column
         rows.append(_q("estimate_error_late", g["estimate_error"].mean(), g.size()))
+    return rows + _decision_times(lt)
+
+
+def _decision_times(lt: pd.DataFrame) -> list[pd.DataFrame]:
+    """Fig. 6's measured decision times of the late training episodes (results from before them: none)."""
+    rows_timed = timed(lt)
+    if rows_timed.empty:
+        return []
+    g = rows_timed.groupby(_KEYS)
+    rows = [_q("decision_ms_late", g["decision_ms"].mean(), g.size()),
+            _q("planning_ms_late", g["planning_ms"].mean(), g.size()),
+            _q("plan_iterations_late", g["plan_iterations"].mean().astype(float), g.size())]
+    ratio, actions = planning_ratio(rows_timed)
+    if len(ratio):
+        rows.append(_q("measured_planning_ratio", ratio, actions))
     return rows
 
 

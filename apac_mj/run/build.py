@@ -13,7 +13,8 @@ TD-MPC2's ``train.py`` is the model: every part is built once, here, and handed 
 * :func:`make_agent` is the one place an :class:`Agent` is constructed, sized by the environments it acts in
   (:attr:`VecEnv.sizes`: no environment is built only to read two specs).
 * :func:`load_run` is a written run's config, spec, environments and agent with its newest intact checkpoint's
-  weights (the frozen tests, recordings and the benches).
+  weights (the frozen tests, recordings and the benches); a task changed since the run trained is refused.
+* :func:`task_record` is the task as a run's config.json records it (:class:`~apac_mj.run.run_dir.TaskRecord`).
 
 The run directory (:mod:`apac_mj.run.run_dir`) only reads and writes files; this module is where the plant
 and the learner meet a run.
@@ -30,11 +31,16 @@ from apac_mj.config import TrainConfig
 from apac_mj.kinds import arbitrator_for, check as check_kind
 from apac_mj.kinematics import Geometry, Sizes
 from apac_mj.run.rollout import EpisodeLoop, Hook
-from apac_mj.run.run_dir import NETWORK_KEYS, RunCheckpoint, RunDir
+from apac_mj.run.run_dir import NETWORK_KEYS, RunCheckpoint, RunDir, TaskRecord
 from apac_mj.suite import spec_for
 from apac_mj.suite.task_spec import TaskSpec
 from apac_mj.suite.vec_env import VecEnv
+from apac_mj.util import paths
+from apac_mj.util.files import jsonable
 
+#: TaskSpec fields that only name and colour a task (``name`` is the config's ``task``): a run's task record
+#: leaves them out, so that a new label or description does not stop a run from resuming.
+_NOT_TRAINED = ("name", "description", "report_label", "report_short", "report_color")
 #: Floats one replay transition holds per member (s, a, r, s', done, executed a, spare: the Agent's replay).
 _FLOATS_PER_TRANSITION = 4 + 2 + 1 + 4 + 1 + 2 + 4
 
@@ -149,10 +155,22 @@ def load_run(run_dir: str | Path, device: str | None = None, precision: str | No
     ckpt = run.load_checkpoint(required=NETWORK_KEYS)
     run.check_config(ckpt)  # config.json says what the checkpoint trained (an edited one: an error naming it)
     spec = spec_for(cfg) if spec is None else spec
+    run.check_task(task_record(cfg, spec), "the networks would act in a task they were not trained on")
     env = environments(cfg, spec) if env is None else env
     agent = make_agent(cfg, spec, env.sizes, device=device, precision=precision)
     agent.load_state_dict(ckpt.agent)
     return LoadedRun(cfg, spec, env, agent, ckpt)
+
+
+def task_record(cfg: TrainConfig, spec: TaskSpec) -> TaskRecord:
+    """``spec`` (``cfg``'s task resolved: :func:`apac_mj.suite.spec_for`) as a run records it: every field that
+    changes what is trained, in JSON form, and where it was read."""
+    def trained(s: TaskSpec) -> dict[str, Any]:
+        return {k: v for k, v in jsonable(dataclasses.asdict(s)).items() if k not in _NOT_TRAINED}
+
+    file = paths.tasks_dir() / f"{cfg.task}.toml"
+    return TaskRecord(trained(spec), f"task file {file}" if file.is_file() else
+                      f"task {cfg.task!r} (registered at run time)", trained(TaskSpec(name=spec.name)))
 
 
 def loaded_agent(cfg: TrainConfig, spec: TaskSpec, sizes: Sizes, state: dict[str, Any], device: str | None = None,

@@ -22,8 +22,10 @@ networks (no noise, no updates) and runs, batched over all members at once:
 Arbitration is the trained one after the planning phase (APAC: the actor on
 the first two steps, then ``|delta| < 1``). Lengths are frozen at their
 end-of-training values during the tests. Time cost: a planning action costs
-3, a habitual one 1. Writes ``eval/<protocol>.parquet`` (one row per seed and
-target) and ``eval/summary.json``; returns the summary.
+3, a habitual one 1; beside it each episode's measured decision time where the habit and where the
+planner acted (s) and its planning iterations (the trailing columns :data:`MEASURED_COLUMNS`, as in the
+training's metrics). Writes ``eval/<protocol>.parquet`` (one row per seed and target) and
+``eval/summary.json``; returns the summary.
 """
 from __future__ import annotations
 
@@ -40,29 +42,36 @@ from apac_mj.kinematics import angle_grid, motion_function
 from apac_mj.kinds import arbitrator_for, get as get_kind
 from apac_mj.run.build import environments, load_run
 from apac_mj.run.rollout import EpisodeLoop, EpisodeState, Hook, OnEpisodeStart, OnStep, as_hooks
-from apac_mj.run.run_dir import RunDir
+from apac_mj.run.run_dir import TIMING_COLUMNS, RunDir
 from apac_mj.suite import spec_for
 from apac_mj.suite.task_spec import TaskSpec
 from apac_mj.suite.vec_env import VecEnv
 from apac_mj.types import HABIT_COST, PLANNING_COST
+from apac_mj.util.threads import torch_threads
 
 PROTOCOLS = ("grid", "occluded", "generalization")
 #: Environment zone radius in the occluded protocol: its reach test never fires.
 _NO_REACH_RADIUS = 1e-9
 COLUMNS = ("seed", "target_index", "target_x", "target_y", "success", "steps", "final_distance", "habit_actions",
            "planning_actions", "time_cost", "judged_reached", "estimate_error")
+#: The measured columns after them (and after ``path_x``, ``path_y`` where the protocol keeps the paths): the
+#: episode's decision wall time where the habit acted and where the planner acted (s), and its planning
+#: iterations (:data:`apac_mj.run.run_dir.TIMING_COLUMNS`). The seconds differ from run to run; the iterations do not.
+MEASURED_COLUMNS = TIMING_COLUMNS
 
 
 def evaluate(run_dir: str | Path, protocols: Sequence[str] = ("grid", "occluded"), region: str | None = None,
              device: str | None = None, progress: bool = False, on_step: OnStep | None = None,
              on_episode_start: OnEpisodeStart | None = None, limit: int | None = None,
-             hooks: Sequence[Hook] = ()) -> dict[str, Any]:
+             hooks: Sequence[Hook] = (), threads: int | None = None) -> dict[str, Any]:
     """Run the frozen-network ``protocols``; write eval/*.parquet and eval/summary.json; return the summary.
 
     ``region`` ("test" or "train") restricts the targets of every protocol to
     that part of the task's region split (``generalization`` implies "test").
     ``limit`` keeps only the first ``limit`` targets per member (quick checks).
     ``hooks`` (then the plain ``on_step`` and ``on_episode_start`` functions) see every frozen episode.
+    ``threads``: torch CPU threads while it runs (None: 1, as ``apac-mj evaluate``; :mod:`apac_mj.util.threads`
+    says why), the caller's count restored after. ``progress``: one bar per protocol, labelled with its name.
     """
     unknown = [p for p in protocols if p not in PROTOCOLS]
     if unknown or not protocols:
@@ -74,7 +83,7 @@ def evaluate(run_dir: str | Path, protocols: Sequence[str] = ("grid", "occluded"
     run = RunDir(run_dir)
     if (problem := run.problem()) is not None:
         raise FileNotFoundError(problem)
-    with run.lock():  # the run's one writer while it is tested (a training of it is refused, and vice versa)
+    with torch_threads(threads), run.lock():  # the run's one writer while it is tested (a training is refused)
         return _evaluate(run, protocols, region, device, progress, as_hooks(hooks, on_step, on_episode_start), limit)
 
 
@@ -105,7 +114,8 @@ def _evaluate(run: RunDir, protocols: Sequence[str], region: str | None, device:
         targets = [t[:limit] for t in targets] if limit is not None else targets
         env = loaded.env if protocol == tested[0] else eval_env(cfg, spec, None, protocol == "occluded")
         rows = run_protocol(cfg, agent, spec, lengths, targets, occluded=protocol == "occluded",
-                            progress=progress, hooks=hooks, running=ckpt.running_statistics(), env=env)
+                            progress=progress, label=f"evaluate {protocol}", hooks=hooks,
+                            running=ckpt.running_statistics(), env=env)
         df = pd.DataFrame(rows)
         if protocol == "occluded":
             df = df.drop(columns=["path_x", "path_y"])
@@ -162,12 +172,14 @@ def eval_env(cfg: TrainConfig, spec: TaskSpec, lengths: np.ndarray | None, occlu
 
 def run_protocol(cfg: TrainConfig, agent: Agent, spec: TaskSpec, lengths: np.ndarray, targets: list[np.ndarray],
                  occluded: bool, progress: bool = False, hooks: Sequence[Hook] = (),
-                 running: dict[str, Any] | None = None, env: VecEnv | None = None) -> list[dict[str, Any]]:
+                 running: dict[str, Any] | None = None, env: VecEnv | None = None,
+                 label: str = "evaluate") -> list[dict[str, Any]]:
     """Episode ``i`` of every member goes to its ``targets[k][i]``; all members side by side.
 
     The arbitrator and the integrator start from ``running`` (the checkpoint's running statistics,
     :meth:`apac_mj.run.run_dir.RunCheckpoint.running_statistics`) and keep them frozen, like the networks.
-    ``env``: the protocol's environments (default: built here); their link lengths are set to ``lengths``."""
+    ``env``: the protocol's environments (default: built here); their link lengths are set to ``lengths``.
+    ``label``: the progress bar's (:func:`evaluate`: "evaluate <protocol>")."""
     env = eval_env(cfg, spec, None, occluded) if env is None else env
     env.set_link_lengths(lengths)
     episodes = EpisodeLoop(agent, arbitrator_for(cfg.agent), env, zone_radius=spec.zone_radius, hooks=hooks,
@@ -175,7 +187,7 @@ def run_protocol(cfg: TrainConfig, agent: Agent, spec: TaskSpec, lengths: np.nda
     episodes.load_state_dict(running or {})
     counts = np.array([len(t) for t in targets])
     rows = []
-    for i in tqdm(range(int(counts.max(initial=0))), disable=not progress, desc="evaluate", unit="target"):
+    for i in tqdm(range(int(counts.max(initial=0))), disable=not progress, desc=label, unit="target"):
         members = counts > i
         padded = np.stack([t[i] if len(t) > i else np.zeros(2) for t in targets])
         env.set_target_override(padded, members)
@@ -211,7 +223,9 @@ def _row(env: VecEnv, k: int, index: int, st: EpisodeState, path: list[list[np.n
             "habit_actions": int(habit_n[k]), "planning_actions": int(plan_n[k]),
             "time_cost": time_cost(int(habit_n[k]), int(plan_n[k])), "judged_reached": judged,
             "estimate_error": float(st.estimate_error_sum[k] / max(1, step[k])),
-            "path_x": p[:, 0].tolist(), "path_y": p[:, 1].tolist()}
+            "path_x": p[:, 0].tolist(), "path_y": p[:, 1].tolist(),
+            "habit_seconds": float(st.habit_seconds[k]), "planning_seconds": float(st.planning_seconds[k]),
+            "plan_iterations": int(st.plan_iterations[k])}
 
 
 def time_cost(habit_actions: int, planning_actions: int) -> int:
@@ -220,7 +234,8 @@ def time_cost(habit_actions: int, planning_actions: int) -> int:
 
 
 def summarize(df: pd.DataFrame, zone_radius: float) -> dict[str, Any]:
-    """Success rate, mean steps to reach (successes), time cost, distances; overall and per seed."""
+    """Success rate, mean steps to reach (successes), time cost, distances, the measured decision time per
+    episode (ms, habit + planning; rows with the measured columns); overall and per seed."""
     if df.empty:
         return {"applicable": True, "episodes": 0}
     reached = df[df.success]
@@ -236,7 +251,8 @@ def summarize(df: pd.DataFrame, zone_radius: float) -> dict[str, Any]:
             **({"estimate_error_mean": float(df.estimate_error.mean())} if "estimate_error" in df else {}),
             **_judged_summary(df),
             "success_rate_per_seed": {str(int(s)): float(v) for s, v in per_seed.items()},
-            "targets_per_seed": {str(int(s)): int(v) for s, v in df.groupby("seed").size().items()}}
+            "targets_per_seed": {str(int(s)): int(v) for s, v in df.groupby("seed").size().items()},
+            **_decision_summary(df)}
 
 
 def _judged_summary(df: pd.DataFrame) -> dict[str, Any]:
@@ -246,3 +262,11 @@ def _judged_summary(df: pd.DataFrame) -> dict[str, Any]:
     judged = df[df.judged_reached]
     return {"judged_reached_rate": float(df.judged_reached.mean()),
             "final_distance_judged_mean": float(judged.final_distance.mean()) if len(judged) else None}
+
+
+def _decision_summary(df: pd.DataFrame) -> dict[str, Any]:
+    """The mean measured decision time per episode (ms; where the habit and where the planner acted
+    together); nothing for rows without the measured columns."""
+    if not all(c in df for c in MEASURED_COLUMNS):
+        return {}
+    return {"mean_decision_ms": float(1e3 * (df.habit_seconds + df.planning_seconds).mean())}

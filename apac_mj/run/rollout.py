@@ -30,16 +30,19 @@ zone"), so nothing true leaks after step 0.
 from __future__ import annotations
 
 import dataclasses
+import time
 from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 import torch
 
+from apac_mj import kinds
 from apac_mj.agent.arbitration import HISTORY, push_delta
 from apac_mj.agent import integrator as integrators
+from apac_mj.agent.planner import InversePlanner
 from apac_mj.suite.vec_env import VecEnv
 from apac_mj.types import (ARM, END, EXTRA, POSITION_DIM, POSITIONS, TARGET, ArbitrationContext, Arbitrator, Decision,
-                           Integrator, Observation, Policy, StepInfo, StepTensors)
+                           Integrator, Observation, Planner, Policy, StepInfo, StepTensors)
 
 
 #: A hook's methods as plain functions: ``on_step(info, vec_env)``, ``on_episode_start(members, vec_env)``.
@@ -122,9 +125,15 @@ class EpisodeState:
     vision: np.ndarray | None = None         # [E] bool: the current state was seen
     forward_error: np.ndarray | None = None  # [E] forward model's error at the last seen step (cm; NaN: none)
     estimate_error_sum: np.ndarray | None = None  # [E] this episode's sum over steps of the integrator's error (cm)
+    habit_seconds: np.ndarray | None = None     # [E] this episode's measured decision time where the habit acted (s)
+    planning_seconds: np.ndarray | None = None  # [E] ... where the planner acted (s)
+    plan_iterations: np.ndarray | None = None   # [E] this episode's planning iterations
 
     def __post_init__(self) -> None:
         E = len(self.step)
+        for name in ("habit_seconds", "planning_seconds"):
+            setattr(self, name, np.zeros(E) if getattr(self, name) is None else getattr(self, name))
+        self.plan_iterations = np.zeros(E, dtype=np.int64) if self.plan_iterations is None else self.plan_iterations
         self.recent_deltas = np.full((E, HISTORY), np.nan) if self.recent_deltas is None else self.recent_deltas
         self.vision = np.ones(E, dtype=bool) if self.vision is None else self.vision
         self.forward_error = np.full(E, np.nan) if self.forward_error is None else self.forward_error
@@ -150,6 +159,7 @@ class EpisodeState:
         self.habit_n[mask], self.plan_n[mask] = 0, 0
         self.recent_deltas[mask], self.vision[mask], self.forward_error[mask] = np.nan, True, np.nan
         self.estimate_error_sum[mask] = 0.0
+        self.habit_seconds[mask], self.planning_seconds[mask], self.plan_iterations[mask] = 0.0, 0.0, 0
 
     def advance(self, info: StepInfo, mask: np.ndarray, counted: np.ndarray | None = None,
                 next_state: torch.Tensor | np.ndarray | None = None) -> None:
@@ -169,12 +179,19 @@ class EpisodeState:
         self.estimate_error_sum += np.where(mask, estimate_error(info), 0.0)
         self.habit_n += counted & info.habit
         self.plan_n += counted & ~info.habit
+        if info.decision_seconds is not None:
+            self.habit_seconds += np.where(counted & info.habit, info.decision_seconds, 0.0)
+            self.planning_seconds += np.where(counted & ~info.habit, info.decision_seconds, 0.0)
+            self.plan_iterations += np.where(counted, info.plan_iterations, 0)
         self.step += mask
 
-    def context(self, episode: np.ndarray, agent: Policy, zone_radius: float) -> ArbitrationContext:
+    def context(self, episode: np.ndarray, agent: Policy, zone_radius: float,
+                planner: Planner | None = None) -> ArbitrationContext:
         """The arbitrator's view of every member at this step (``episode`` as the arbitrator reads it;
-        ``zone_radius``: the target zone's, cm, :attr:`EpisodeLoop.zone_radius`)."""
+        ``zone_radius``: the target zone's, cm, :attr:`EpisodeLoop.zone_radius`; ``planner``: the one whose
+        model imagines the habit's sequence, :attr:`ArbitrationContext.habit_probe`)."""
         state = self.state
+        probe = None if planner is None else (lambda: planner.probe(agent, state))
 
         def predict_end(action: torch.Tensor) -> torch.Tensor:
             return agent.predict_arm(state, agent.executable(action, state))[:, END]
@@ -186,7 +203,7 @@ class EpisodeState:
                                   vision=torch.tensor(self.vision), state=state,
                                   forward_error=torch.tensor(self.forward_error, dtype=torch.float32),
                                   habit_action=agent.actor_action(state), predict_end=predict_end,
-                                  zone_radius=float(zone_radius))
+                                  habit_probe=probe, zone_radius=float(zone_radius))
 
 
 def estimate_error(info: StepInfo) -> np.ndarray:
@@ -196,26 +213,66 @@ def estimate_error(info: StepInfo) -> np.ndarray:
     return np.linalg.norm((info.next_state[:, POSITIONS] - truth).reshape(-1, 3, 2), axis=-1).mean(-1)
 
 
+@dataclasses.dataclass
+class Choice:
+    """What :func:`select_action` chose for every member, and what the choice cost."""
+
+    action: torch.Tensor       # [E, 2] the command (noise added when exploring, bounded)
+    decision: Decision         # the arbitrator's (``habit`` on the agent's device)
+    iterations: np.ndarray     # [E] planning iterations run (0 where the habit acted)
+    seconds: np.ndarray        # [E] each member's share of the decision's measured wall time (StepInfo.decision_seconds)
+    gains: np.ndarray | None   # [E, K] the plan's best value after each iteration minus the habit's (None: no model)
+
+
 def select_action(agent: Policy, arbitrator: Arbitrator, ctx: ArbitrationContext, active: np.ndarray,
-                  explore: bool) -> tuple[torch.Tensor, Decision]:
-    """The arbitrator's choice between the actor's and the inverse model's proposals (+ OU noise), and its
-    decision (``habit`` on the agent's device)."""
+                  explore: bool, planner: Planner | None = None, habit_seconds: float = 0.0) -> Choice:
+    """The arbitrator's choice between the actor's and the planner's proposals (+ OU noise); ``planner``
+    default the paper's inverse model; ``habit_seconds``: the measured time of the actor's pass (all members)."""
     state = ctx.state
+    t0 = time.perf_counter()
     decision = arbitrator.use_habit(ctx)
-    if not isinstance(decision, tuple) or len(decision) != 2:
+    if not isinstance(decision, tuple) or len(decision) not in (2, 3):
         raise ValueError(f"{type(arbitrator).__name__}.use_habit must return a Decision(habit [E] bools, inputs), "
                          f"got {type(decision).__name__}")
-    habit = torch.as_tensor(decision[0], dtype=torch.bool).to(state.device)
+    decision = Decision(*decision)
+    habit = torch.as_tensor(decision.habit, dtype=torch.bool).to(state.device)
     if tuple(habit.shape) != (ctx.E,):
         raise ValueError(f"{type(arbitrator).__name__}.use_habit must return [E] = ({ctx.E},) bools, "
                          f"got shape {tuple(habit.shape)}")
+    arbitration_seconds = time.perf_counter() - t0
+    planner = planner or InversePlanner()
+    budget = _budget(decision, habit, planner)
     habit_action = agent.actor_action(state) if ctx.habit_action is None else ctx.habit_action
-    proposal = torch.where(habit[:, None], habit_action, agent.inverse_action(state))
+    t0 = time.perf_counter()
+    plan = planner.propose(agent, ctx, budget)
+    plan_seconds = time.perf_counter() - t0
+    proposal = torch.where(habit[:, None], habit_action, plan.action)
     if explore:
         sigma = agent.cfg.ou_sigma_at(ctx.episode.numpy())
         proposal = proposal + agent.noise.sample(torch.as_tensor(active), sigma).to(state.device)
     bound = agent.sizes.action_bound
-    return proposal.clamp(-bound, bound), Decision(habit, dict(decision[1]))
+    iterations = plan.iterations.cpu().numpy() * ~habit.cpu().numpy()
+    seconds = _shares(habit_seconds + arbitration_seconds, plan_seconds, iterations)
+    gains = None if plan.habit_value is None else (plan.best_values - plan.habit_value[:, None]).numpy()
+    return Choice(proposal.clamp(-bound, bound), Decision(habit, dict(decision.inputs), decision.iterations),
+                  iterations, seconds, gains)
+
+
+def _budget(decision: Decision, habit: torch.Tensor, planner: Planner) -> torch.Tensor:
+    """``[E]`` planning iterations per member: the decision's (where it grants them), else the planner's
+    maximum; 0 where the habit acts."""
+    planning = ~habit.cpu()
+    if decision.iterations is None:
+        return planning.long() * planner.max_iterations
+    return torch.as_tensor(decision.iterations).long().cpu().clamp(0, planner.max_iterations) * planning
+
+
+def _shares(common: float, plan_seconds: float, iterations: np.ndarray) -> np.ndarray:
+    """Each member's share of a decision's time: ``common`` (the actor's pass and the arbitration, every
+    member) split evenly, ``plan_seconds`` split in proportion to the iterations run."""
+    total = iterations.sum()
+    plan = plan_seconds * iterations / total if total else np.zeros(len(iterations))
+    return common / len(iterations) + plan
 
 
 def decision_inputs(decision: Decision) -> dict[str, np.ndarray]:
@@ -257,7 +314,8 @@ class EpisodeLoop:
     """
 
     def __init__(self, agent: Policy, arbitrator: Arbitrator, env: VecEnv, zone_radius: float | None = None,
-                 hooks: Sequence[Hook] = (), adapt: bool = True, integrator: Integrator | None = None) -> None:
+                 hooks: Sequence[Hook] = (), adapt: bool = True, integrator: Integrator | None = None,
+                 planner: Planner | None = None) -> None:
         self.agent, self.arbitrator, self.env = agent, arbitrator, env
         #: Radius (cm) of the target zone the agent judges its estimate by: ``zone_radius``, default the
         #: task's (``env.spec.zone_radius``), resolved here once for every step.
@@ -270,16 +328,24 @@ class EpisodeLoop:
         self.integrator = integrator if integrator is not None else integrators.build(
             agent.cfg, env.E, env.spec.observation_noise_std, agent.device)
         self.integrator.adapt = adapt
+        #: The planning system (apac_mj.agent.planner): default the kind's (``kinds.planner_for``), judging
+        #: imagined arrival by this loop's zone and the task's stop speed.
+        self.planner = planner if planner is not None else kinds.planner_for(
+            agent.cfg, agent.seeds, agent.action_dim, self.zone_radius, env.spec.stop_speed)
 
     def state_dict(self) -> dict[str, Any]:
-        """The running statistics a checkpoint keeps: the arbitrator's and the integrator's."""
-        return {"arbitrator": self.arbitrator.state_dict(), "integrator": self.integrator.state_dict()}
+        """What a checkpoint keeps: the arbitrator's and the integrator's running statistics; the planner's
+        warm start and random streams where it has them."""
+        d = {"arbitrator": self.arbitrator.state_dict(), "integrator": self.integrator.state_dict()}
+        planner = self.planner.state_dict()
+        return {**d, "planner": planner} if planner else d
 
     def load_state_dict(self, d: dict[str, Any]) -> None:
         """Restore :meth:`state_dict` (missing parts: kept as built; a checkpoint from before them)."""
         self.arbitrator.load_state_dict(d.get("arbitrator") or {})
         if "integrator" in d:
             self.integrator.load_state_dict(d["integrator"])
+        self.planner.load_state_dict(d.get("planner") or {})
 
     def start(self, st: EpisodeState, mask: np.ndarray, reset_noise: bool = True) -> None:
         """New episodes for the members in ``mask``: reset their environment and carried state."""
@@ -287,6 +353,7 @@ class EpisodeLoop:
         seen = observed_state(obs, st.state.device)
         self.integrator.reset(np.asarray(mask, dtype=bool), seen)
         st.reset(mask, with_extra(seen, self.env))
+        self.planner.reset(mask)
         if reset_noise:
             self.agent.noise.reset(torch.as_tensor(mask))
         for hook in self.hooks:
@@ -296,14 +363,21 @@ class EpisodeLoop:
             arbitration_episode: np.ndarray | None = None, override: Override | None = None) -> StepInfo:
         """Arbitrate (the arbitrator reads ``arbitration_episode``, default ``episode``), let ``override``
         replace the action (the trainer's babbling), step the ``active`` members."""
-        ctx = st.context(episode if arbitration_episode is None else arbitration_episode, self.agent, self.zone_radius)
-        action, decision = select_action(self.agent, self.arbitrator, ctx, active, explore)
-        habit, inputs = decision.habit, decision_inputs(decision)
+        t0 = time.perf_counter()
+        ctx = st.context(episode if arbitration_episode is None else arbitration_episode, self.agent,
+                         self.zone_radius, self.planner)
+        choice = select_action(self.agent, self.arbitrator, ctx, active, explore, self.planner,
+                               habit_seconds=time.perf_counter() - t0)
+        action, habit, inputs = choice.action, choice.decision.habit, decision_inputs(choice.decision)
         if override is not None:
             action, habit = override(action, habit)
         info = agent_step(self.agent, self.env, self.integrator, st.state, episode, st.step, active, action, habit,
                           zone_radius=self.zone_radius)
-        info.arbitration = inputs
+        info.arbitration, info.decision_seconds = inputs, choice.seconds
+        info.plan_iterations = np.where(habit.cpu().numpy(), 0, choice.iterations)
+        info.plan_gains = choice.gains
+        if choice.iterations.any() and self.planner.last_plan is not None:
+            info.plan = {k: v.numpy() for k, v in self.planner.last_plan.items()}
         return info
 
     def advance(self, st: EpisodeState, info: StepInfo, active: np.ndarray, counted: np.ndarray | None = None,

@@ -3,7 +3,7 @@
 Layout (``docs/architecture.md`` has the columns)::
 
     RUN_DIR/
-      config.json          the resolved TrainConfig, plus "git_commit"
+      config.json          the resolved TrainConfig, plus "git_commit", "task_spec" and "task_digest"
       metrics.parquet      one row per (seed, episode): METRIC_COLUMNS
       checkpoints/         latest.pt and the one before it, previous.pt (RunCheckpoint: what they hold)
       eval/                <protocol>.parquet and summary.json, from the frozen tests
@@ -23,7 +23,9 @@ when its holder dies; a second writer is refused, naming the holder's PID), and 
 the temporary files a killed writer left. The checkpoint is the truth: config.json, the episode count
 and metrics.parquet are checked against what the checkpoint records (its config, and a digest and a
 copy of the metric rows); a file that disagrees is a :class:`RunMismatch` naming it and the way out,
-and damaged or edited metric rows are restored from the checkpoint's copy.
+and damaged or edited metric rows are restored from the checkpoint's copy. config.json also records the task
+the run trains (the resolved task and its digest, :func:`task_digest`): a task file edited since is a
+:class:`TaskChanged` naming the file and the fields (:meth:`RunDir.check_task`).
 """
 from __future__ import annotations
 
@@ -56,12 +58,25 @@ LATEST, PREVIOUS, OLD_CHECKPOINTS = "latest.pt", "previous.pt", "ckpt_*.pt"
 METRIC_COLUMNS = ("seed", "episode", "phase", "success", "steps", "return", "final_distance", "habit_actions",
                   "planning_actions", "l1", "l2", "target_x", "target_y", "critic_loss", "actor_loss",
                   "forward_loss", "inverse_loss", "estimate_error")
+#: Measured columns after them (issue 28): each episode's decision time where the habit and where the planner
+#: acted (s), and its planning iterations. Not in the rows' digest: wall times differ from run to run; runs
+#: from before them lack them (NaN when such a run is extended).
+TIMING_COLUMNS = ("habit_seconds", "planning_seconds", "plan_iterations")
 #: What every training checkpoint holds (and what a finished run's latest.pt is checked for).
 CHECKPOINT_KEYS = ("config", "loop", "agent", "env", "babbling_generators", "metric_rows")
 #: What reading a run's networks and environments needs (the frozen tests, recordings).
 NETWORK_KEYS = ("agent", "env")
 #: The running statistics a checkpoint keeps (``EpisodeLoop.state_dict``; absent before they existed).
-RUNNING_KEYS = ("arbitrator", "integrator")
+RUNNING_KEYS = ("arbitrator", "integrator", "planner")
+#: config.json's keys beside the config: the commit the run started at, and the task it trains (the resolved
+#: task in JSON form, :func:`apac_mj.run.build.task_record`, and its :func:`task_digest`; runs written before
+#: these existed have neither, and their task is not checked).
+COMMIT, TASK_SPEC, TASK_DIGEST = "git_commit", "task_spec", "task_digest"
+
+
+class TaskChanged(ValueError):
+    """The task a run trains has changed since the run started (its task file edited): the message names the
+    file and the fields. Nothing was written."""
 
 
 class RunMismatch(ValueError):
@@ -92,9 +107,14 @@ def config_dict(cfg: TrainConfig) -> dict[str, Any]:
 
 
 def stored_config(stored: dict[str, Any]) -> dict[str, Any]:
-    """A config as a run stored it (config.json, a checkpoint) in this code's form: without its commit, and
-    migrated from the shape older releases wrote (:func:`apac_mj.config.migrate`)."""
-    return migrate({k: v for k, v in stored.items() if k != "git_commit"})
+    """A config as a run stored it (config.json, a checkpoint) in this code's form: without its commit and
+    task, and migrated from the shape older releases wrote (:func:`apac_mj.config.migrate`)."""
+    return migrate({k: v for k, v in stored.items() if k not in (COMMIT, TASK_SPEC, TASK_DIGEST)})
+
+
+def task_digest(task: dict[str, Any]) -> str:
+    """A SHA-256 of a resolved task in JSON form (:func:`apac_mj.run.build.task_record`), keys sorted."""
+    return hashlib.sha256(json.dumps(task, sort_keys=True, allow_nan=True).encode()).hexdigest()
 
 
 def diff(old: dict[str, Any], new: dict[str, Any], where: str, prefix: str = "", now: str = "now") -> list[str]:
@@ -107,6 +127,22 @@ def diff(old: dict[str, Any], new: dict[str, Any], where: str, prefix: str = "",
         elif a != b:
             out.append(f"{prefix}{k}: {a!r} {where}, {b!r} {now}")
     return out
+
+
+@dataclasses.dataclass(frozen=True)
+class TaskRecord:
+    """The task a run trains as config.json records it (:func:`apac_mj.run.build.task_record` makes it)."""
+
+    #: The resolved task (file and overrides) in JSON form, without what only names or colours it in reports.
+    spec: dict[str, Any]
+    #: Where it was read, for messages: "task file tasks/NAME.toml" or "task 'NAME' (registered at run time)".
+    source: str
+    #: Every field's default in the same form: a field added since a run started counts as its default there.
+    defaults: dict[str, Any] = dataclasses.field(default_factory=dict)
+
+    @property
+    def digest(self) -> str:
+        return task_digest(self.spec)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -183,7 +219,8 @@ class RunCheckpoint:
         return self.data["torch_rng"]
 
     def running_statistics(self) -> dict[str, Any]:
-        """The arbitrator's and the integrator's running statistics (absent in checkpoints from before them)."""
+        """The arbitrator's and the integrator's running statistics and a model planner's warm start and random
+        streams (absent in checkpoints from before them, and for kinds without them)."""
         return {k: self.data[k] for k in RUNNING_KEYS if k in self.data}
 
     def member_lengths(self) -> np.ndarray:
@@ -261,12 +298,13 @@ class RunDir:
         """The episode count config.json records (None: no run here yet)."""
         return self.config().get("episodes") if self.exists() else None
 
-    def prepare(self, cfg: TrainConfig) -> tuple[dict[str, Any], int | None]:
-        """Check ``cfg`` (already valid in itself: :func:`apac_mj.run.build.check`) against the run already here;
-        write nothing.
+    def prepare(self, cfg: TrainConfig, task: TaskRecord | None = None) -> tuple[dict[str, Any], int | None]:
+        """Check ``cfg`` (already valid in itself: :func:`apac_mj.run.build.check`) and its ``task`` against the run
+        already here; write nothing.
 
         Returns the config and the episode count of the run already here (None: a new run). The same
-        config with more episodes extends a run; any other difference is refused.
+        config with more episodes extends a run; any other difference is refused, and so is a task file
+        edited since the run trained (:meth:`check_task`).
         """
         config = config_dict(cfg)
         if not self.exists():
@@ -280,18 +318,43 @@ class RunDir:
         if cfg.episodes < old["episodes"]:
             raise ValueError(f"{self.path} holds a run of {old['episodes']} episodes; it cannot be shortened to "
                              f"{cfg.episodes} (use another --out, or --episodes >= {old['episodes']})")
+        if task is not None and self.checkpoint_files():  # without a checkpoint nothing was trained: it starts over
+            self.check_task(task, "training on would mix two tasks in one run")
         return config, int(old["episodes"])
 
-    def write_config(self, config: dict[str, Any], run_episodes: int | None) -> None:
+    def write_config(self, config: dict[str, Any], run_episodes: int | None, task: TaskRecord | None = None) -> None:
         """Write config.json for a new run, or the new episode count of an extended one (DONE removed
-        first); the commit is the one the run was started at."""
-        if run_episodes == config["episodes"]:
+        first); the commit is the one the run was started at, the task the one it trained (``task`` for a
+        run that has not trained yet; a run from before task records gets none)."""
+        stored = self._stored()
+        records = self._records(stored, task)
+        if run_episodes == config["episodes"] and all(stored.get(k) == v for k, v in records.items()):
             return
         self.path.mkdir(parents=True, exist_ok=True)
         (self.path / DONE).unlink(missing_ok=True)
-        stored = self._stored()
-        commit = stored.get("git_commit") if stored is not None else git_commit()
-        atomic_write_text(self.path / CONFIG, json.dumps({**config, "git_commit": commit}, indent=2) + "\n")
+        atomic_write_text(self.path / CONFIG, json.dumps({**config, **records}, indent=2) + "\n")
+
+    def _records(self, stored: dict[str, Any] | None, task: TaskRecord | None) -> dict[str, Any]:
+        """config.json's keys beside the config (COMMIT, TASK_SPEC, TASK_DIGEST) for the run to write."""
+        if stored is not None and self.checkpoint_files():  # trained: what it recorded when it started
+            return {k: stored[k] for k in (COMMIT, TASK_SPEC, TASK_DIGEST) if k in stored}
+        commit = stored.get(COMMIT) if stored is not None else git_commit()
+        return {COMMIT: commit, **({TASK_SPEC: task.spec, TASK_DIGEST: task.digest} if task is not None else {})}
+
+    def check_task(self, task: TaskRecord, doing: str) -> None:
+        """The task config.json records is ``task`` (a run from before task records: not checked); else
+        :class:`TaskChanged` naming where the task is read, the fields that changed, and ``doing`` (what
+        going on would do)."""
+        stored = self._stored() or {}
+        digest = stored.get(TASK_DIGEST)
+        if digest is None or digest == task.digest:
+            return
+        changed = diff(_as_now(stored.get(TASK_SPEC) or {}, task.defaults or task.spec), task.spec, "in the run")
+        if not changed:  # only fields added since the run started, at their defaults
+            return
+        raise TaskChanged(f"{task.source} has changed since {self.path} was trained on it ({'; '.join(changed)}): "
+                          f"{doing}. Put the task back as it was (config.json's \"{TASK_SPEC}\" holds every value "
+                          "the run trained with), or train the changed task into another --out (nothing was written)")
 
     def check_config(self, ckpt: RunCheckpoint) -> None:
         """config.json records the config ``ckpt`` was trained with (the episode count may be larger while an
@@ -362,6 +425,8 @@ class RunDir:
         path = self.path / METRICS
         try:
             return pq.ParquetFile(path).metadata.num_rows if path.is_file() else 0
+        except MemoryError:
+            raise  # out of memory is not a damaged file (apac_mj.util.memory)
         except Exception:  # noqa: BLE001 - a damaged file (resuming restores it from the checkpoint)
             return -1
 
@@ -373,9 +438,11 @@ class RunDir:
         return pd.read_parquet(self.path / METRICS)
 
     def write_metrics(self, rows: list[dict[str, Any]]) -> bytes:
-        """Atomically write the metric rows as metrics.parquet (columns: METRIC_COLUMNS); return its bytes."""
+        """Atomically write the metric rows as metrics.parquet (columns: METRIC_COLUMNS, then TIMING_COLUMNS where the
+        rows have them); return its bytes."""
         buf = io.BytesIO()
-        pd.DataFrame(rows, columns=list(METRIC_COLUMNS)).to_parquet(buf, index=False)
+        timed = any(c in r for r in rows[-1:] for c in TIMING_COLUMNS)
+        pd.DataFrame(rows, columns=[*METRIC_COLUMNS, *(TIMING_COLUMNS if timed else ())]).to_parquet(buf, index=False)
         table = buf.getvalue()
         atomic_write_bytes(self.path / METRICS, lambda f: f.write(table))
         return table
@@ -409,11 +476,14 @@ class RunDir:
             return [], f"is missing but the checkpoint expects {n} metric rows"
         try:
             df = pd.read_parquet(path)
+        except MemoryError:
+            raise  # out of memory is not a damaged file: nothing is restored or rewritten
         except Exception as e:  # noqa: BLE001 - pyarrow raises many types for a damaged file
             return [], f"cannot be read ({type(e).__name__}: {e})"
-        if len(df) < n or list(df.columns) != list(METRIC_COLUMNS):
+        known = (list(METRIC_COLUMNS), [*METRIC_COLUMNS, *TIMING_COLUMNS])
+        if len(df) < n or list(df.columns) not in known:
             return [], (f"has {len(df)} rows, the checkpoint expects {n}" if len(df) < n
-                        else f"has the columns {list(df.columns)}, not {list(METRIC_COLUMNS)}")
+                        else f"has the columns {list(df.columns)}, not {known[-1]}")
         return [_plain(r) for r in df.iloc[:n].to_dict("records")], None
 
     def summary(self, last: int = 100) -> dict[str, Any]:
@@ -486,6 +556,13 @@ def metric_digest(rows: list[dict[str, Any]]) -> str:
     """A SHA-256 of metric rows' values in METRIC_COLUMNS order (floats by their exact repr; NaN as NaN)."""
     values = [[_scalar(r.get(c)) for c in METRIC_COLUMNS] for r in rows]
     return hashlib.sha256(json.dumps(values, allow_nan=True).encode()).hexdigest()
+
+
+def _as_now(stored: dict[str, Any], now: dict[str, Any]) -> dict[str, Any]:
+    """A recorded task in today's fields (those of ``now``, nested): a field it lacks (added since) takes its
+    value in ``now`` (its default), a field it has that today's lack (removed since) is left out."""
+    return {k: _as_now(stored[k], v) if isinstance(v, dict) and isinstance(stored.get(k), dict) else stored.get(k, v)
+            for k, v in now.items()}
 
 
 def _scalar(v: Any) -> Any:

@@ -54,12 +54,13 @@ from tqdm.auto import tqdm
 
 from apac_mj.agent import precision as precisions
 from apac_mj.config import PRECISIONS, AgentConfig, TrainConfig
-from apac_mj.run.build import Run, build, check
+from apac_mj.run.build import Run, build, check, task_record
 from apac_mj.run.checkpoint import CheckpointError
 from apac_mj.run.rollout import EpisodeLoop, EpisodeState, Hook, OnEpisodeStart, OnStep, as_hooks
 from apac_mj.run.run_dir import RunCheckpoint, RunDir, RunMismatch, config_dict, diff, say
 from apac_mj.suite.task_spec import TaskSpec
 from apac_mj.types import ARM, END, LOSSES, TARGET, StepInfo
+from apac_mj.util.threads import torch_threads
 
 #: Episodes (all seeds) in the progress bar's running success rate and habit share.
 PROGRESS_WINDOW = 20
@@ -114,17 +115,20 @@ class LoopState(EpisodeState):
 
 # -- the loop ----------------------------------------------------------------------------------
 def train(cfg: TrainConfig, out_dir: str | Path, progress: bool = True, on_step: OnStep | None = None,
-          on_episode_start: OnEpisodeStart | None = None, hooks: Sequence[Hook] = ()) -> Path:
+          on_episode_start: OnEpisodeStart | None = None, hooks: Sequence[Hook] = (),
+          threads: int | None = None) -> Path:
     """Train ``cfg.seeds`` side by side on ``cfg.task``; write/resume/extend ``out_dir``; return it.
 
     ``hooks`` (then the plain ``on_step`` and ``on_episode_start`` functions) see every episode start
     and step. Everything is validated before anything is written: a refused or failed start leaves no
     files. Resuming, extending a finished run (same config, more episodes) and finding a run already
-    finished are said on stderr, as is a fallback to an older checkpoint.
+    finished are said on stderr, as is a fallback to an older checkpoint. ``threads``: torch CPU threads
+    while it trains (None: 1, as ``apac-mj train``; :mod:`apac_mj.util.threads` says why), the caller's
+    count restored after.
     """
     run_dir = RunDir(out_dir)
     spec = check(cfg)  # before the directory (and its lock) exist; the one read of the task file
-    with run_dir.lock():  # one writer per run: another process writing it is refused, naming its PID
+    with torch_threads(threads), run_dir.lock():  # one writer per run: another process is refused, naming its PID
         return Trainer(cfg, spec, run_dir, as_hooks(hooks, on_step, on_episode_start), progress).train()
 
 
@@ -156,7 +160,8 @@ class Trainer:
     def train(self) -> Path:
         """Build the run, restore its checkpoint if it has one, train until every member finished."""
         cfg, run_dir = self.cfg, self.run_dir
-        _, run_episodes = run_dir.prepare(cfg)  # the same JSON form as self.config
+        task = task_record(cfg, self.spec)
+        _, run_episodes = run_dir.prepare(cfg, task)  # the same JSON form as self.config
         if run_episodes == cfg.episodes and run_dir.check_finished():
             say(f"{run_dir.path} already finished {cfg.episodes} episodes; nothing to train "
                 f"(a larger --episodes extends it)")
@@ -169,7 +174,7 @@ class Trainer:
             self._restore()
             self.saved_at = self.state.slowest()
             _say_resume(run_dir.path, self.state, run_episodes, cfg.episodes)
-        run_dir.write_config(self.config, run_episodes)
+        run_dir.write_config(self.config, run_episodes, task)
         self.bar, self.window = _progress_bar(cfg, self.state, self.rows, self.progress)
         try:
             self._loop()
@@ -315,7 +320,9 @@ def _say_babbling(bar: tqdm, loop: LoopState, babbling: int) -> None:
 def _say_resume(out_dir: Path, loop: LoopState, run_episodes: int | None, episodes: int) -> None:
     done = loop.slowest()
     if run_episodes is not None and run_episodes < episodes:
-        say(f"extending {out_dir} from {run_episodes} to {episodes} episodes: resuming at episode {done}")
+        say(f"extending {out_dir} from {run_episodes} to {episodes} episodes: resuming at episode {done}; each seed's "
+            f"episodes will equal a run of {episodes} from the start, but metrics.parquet lists them in the order "
+            "they end, which differs from that run's (compare by seed and episode)")
     else:
         say(f"resuming {out_dir} from its checkpoint: {done} of {episodes} episodes done (slowest seed)")
 
@@ -379,6 +386,8 @@ def _finish_episodes(loop: LoopState, info: StepInfo, seeds: list[int]) -> list[
                      "l2": float(info.link_lengths[k, 1]), "target_x": float(info.target[k, 0]),
                      "target_y": float(info.target[k, 1]),
                      "estimate_error": float(loop.estimate_error_sum[k] / max(1, loop.step[k])),
+                     "habit_seconds": float(loop.habit_seconds[k]), "planning_seconds": float(loop.planning_seconds[k]),
+                     "plan_iterations": int(loop.plan_iterations[k]),
                      **{f"{n}_loss": float(loop.loss_sum[k, i] / loop.loss_n[k]) if loop.loss_n[k] else float("nan")
                         for i, n in enumerate(LOSS_NAMES)}})
         loop.episode[k] += 1

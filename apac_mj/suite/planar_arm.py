@@ -325,7 +325,8 @@ class ScaledArray(specs.Array):
 
 
 class Reach(base.Task):
-    """Reach the target: reward = -distance, terminal inside the target zone.
+    """Reach the target: reward = -distance, terminal inside the target zone (:meth:`reached`; a task with a
+    stop criterion, ``TaskSpec.stop_speed``: inside the zone and slower than ``stop_speed``).
 
     Observations (the paper's 6-vector state plus a vision flag):
     ``end_effector`` (2), ``elbow`` (2), ``target`` (2) in cm and ``vision``
@@ -505,8 +506,17 @@ class Reach(base.Task):
     def get_reward(self, physics: Physics) -> float:
         return -physics.distance_to_target()
 
+    def reached(self, physics: Physics) -> bool:
+        """The target is reached: the hand inside the zone and, under a stop criterion (``spec.stop_speed``,
+        deg/s), every joint's |angular velocity| at most ``stop_speed``. Without one (the paper's tasks): the
+        zone alone."""
+        if not physics.distance_to_target() <= self.spec.zone_radius:
+            return False
+        stop = self.spec.stop_speed
+        return stop is None or stopped(physics, stop)
+
     def get_termination(self, physics: Physics):
-        if physics.distance_to_target() <= self.spec.zone_radius:
+        if self.reached(physics):
             return 0.0  # terminal: the target is reached
         if self.step_count >= self.spec.steps_per_episode:
             return 1.0  # time limit: a truncation, discount 1
@@ -534,6 +544,12 @@ class Reach(base.Task):
         self._seen = bool(state.get("seen", True))
         noise = state.get("noise")
         self._noise = None if noise is None else np.asarray(noise, dtype=np.float64).reshape(6).copy()
+
+
+def stopped(physics: Physics, stop_speed: float) -> bool:
+    """Every joint's |angular velocity| is at most ``stop_speed`` (deg/s): the stop criterion's speed part."""
+    v = physics.joint_velocities()  # as observed: the comparison the agent can make, to the bit
+    return bool(abs(v[0]) <= stop_speed and abs(v[1]) <= stop_speed)
 
 
 def validate_action(action, torque: bool = False) -> np.ndarray:

@@ -69,6 +69,12 @@ class TaskSpec:
     target_region: str = "all"
     #: Radius of the target zone around the target (cm); inside it the target is reached.
     zone_radius: float = 0.5
+    #: File key ``[target] stop_speed``: the stop criterion (deg/s). The target is reached (the episode ends,
+    #: terminal) only when the hand is inside the zone *and* the arm is slower than this: every joint's
+    #: |angular velocity| (the observed ``joint_velocities``) at most ``stop_speed``. It needs a plant whose
+    #: velocities the agent observes (``[plant] observe_velocities``). None (no key): the paper's criterion,
+    #: the zone alone.
+    stop_speed: float | None = None
     #: "static" or "changing" (both lengths grow by ``growth_per_step`` each step).
     kinematics_mode: str = "static"
     #: Initial (upper arm l1, forearm l2) lengths in cm.
@@ -125,6 +131,7 @@ class TaskSpec:
         _check_choice(self, "at_limit", ("clip", "unbounded"))
         _check_report(self)
         _check_positive(self, "zone_radius", self.zone_radius)
+        _check_stop_speed(self)
         for k, v in zip(("l1", "l2"), self.link_lengths):
             _check_positive(self, f"link_lengths ({k})", v)
         for k, v in zip(("width", "height"), self.plane_size):
@@ -225,6 +232,24 @@ def _check_report(spec: TaskSpec) -> None:
                                 "matplotlib colour (e.g. 'tab:olive', 'navy', '#1f77b4')")
 
 
+_STOP_KEY = "stop_speed ([target] stop_speed)"
+
+
+def _check_stop_speed(spec: TaskSpec) -> None:
+    """The stop criterion is None or a positive finite speed (deg/s), on a plant whose velocities are observed."""
+    v = spec.stop_speed
+    if v is None:
+        return
+    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not math.isfinite(v) \
+            or v <= 0:
+        raise TaskSpecError(f"task {spec.name!r}: {_STOP_KEY} must be a positive finite number (deg/s, the "
+                            f"largest joint speed that counts as stopped), got {v!r}")
+    if not spec.plant.observe_velocities:
+        raise TaskSpecError(f"task {spec.name!r}: {_STOP_KEY} needs a plant whose joint velocities are observed "
+                            "([plant] observe_velocities = true, with actuation 'compliant' or 'torque'): the "
+                            "agent must see the speed it is judged by")
+
+
 def _check_positive(spec: TaskSpec, field: str, value: float) -> None:
     if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
         raise TaskSpecError(f"task {spec.name!r}: {field} must be a positive finite number, got {value!r}")
@@ -233,7 +258,8 @@ def _check_positive(spec: TaskSpec, field: str, value: float) -> None:
 # File layout: section -> {key in file: TaskSpec field}.
 _LAYOUT: dict[str, dict[str, str]] = {
     "": {"description": "description"},
-    "target": {"mode": "target_mode", "region": "target_region", "zone_radius": "zone_radius"},
+    "target": {"mode": "target_mode", "region": "target_region", "zone_radius": "zone_radius",
+               "stop_speed": "stop_speed"},
     "kinematics": {
         "mode": "kinematics_mode",
         "link_lengths": "link_lengths",
@@ -248,7 +274,7 @@ _LAYOUT: dict[str, dict[str, str]] = {
     "report": {"label": "report_label", "short": "report_short", "color": "report_color"},
 }
 _PAIRS = {"link_lengths", "plane_size", "origin", "joint_range"}
-_FLOATS = {"zone_radius", "growth_per_step", "vision_noise_std", "vision_seen_probability"}
+_FLOATS = {"zone_radius", "growth_per_step", "vision_noise_std", "vision_seen_probability", "stop_speed"}
 _INTS = {"growth_start_episode", "steps_per_episode"}
 
 
@@ -282,6 +308,8 @@ def _coerce(field: str, value: Any, where: str) -> Any:
         if not isinstance(value, (list, tuple)) or len(value) != 2:
             raise TaskSpecError(f"{where} must be a list of two numbers, got {value!r}")
         return (finite_number(value[0], where), finite_number(value[1], where))
+    if field == "stop_speed" and value is None:  # an override back to the paper's criterion (no TOML spelling)
+        return None
     if field in _FLOATS:
         return finite_number(value, where)
     if field in _INTS:

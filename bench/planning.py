@@ -1,0 +1,99 @@
+"""What a planning decision costs, side by side in one run: the habit's decision (the actor's forward pass), the
+paper's planner (one inverse-model query), the habit probe (the actor imagined through the forward model), one
+MPC decision at each iteration count, and one training update (``Agent.update``), all at the paper's network
+sizes for E members, on the agent's device, interleaved round by round so that machine load hits all alike.
+
+It prints the median milliseconds of each and the ratios the project's claims rest on: a planning decision at
+the defaults against one training update (issue 28: at most 1), the inverse model against the habit (the paper
+assumes 3, ``apac_mj.types.PLANNING_COST``), and one MPC iteration against the habit (the graded rule's
+``agent.voc.iteration_cost``).
+
+    .venv/bin/python bench/planning.py [--task changing_target] [--seeds 10] [--rounds 30] [--threads 1]
+"""
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from typing import Callable
+
+import numpy as np
+import torch
+
+import apac_mj  # noqa: F401  (sets MUJOCO_GL)
+from apac_mj.agent.agent import Agent
+from apac_mj.agent.planner import MPCPlanner
+from apac_mj.config import AgentConfig
+from apac_mj.kinematics import Geometry
+from apac_mj.rules import MPCParams
+from apac_mj.suite.vec_env import VecEnv
+from apac_mj.types import ArbitrationContext
+
+
+def setup(task: str, E: int, kind: str = "spac_mpc") -> tuple[Agent, MPCPlanner, ArbitrationContext]:
+    """An agent at the paper's sizes with a full replay memory of random transitions, its planner and a context."""
+    env = VecEnv(task, list(range(E)))
+    cfg = AgentConfig(kind=kind)
+    agent = Agent(cfg, list(range(E)), sizes=env.sizes, geometry=Geometry.from_spec(env.spec))
+    S, A = agent.state_dim, agent.action_dim
+    g = torch.Generator().manual_seed(0)
+    for _ in range(cfg.batch_size // 50 + 1):
+        s = torch.rand(E, S, generator=g) * 30
+        a = (torch.rand(E, A, generator=g) * 2 - 1) * agent.cfg.action_scale
+        agent.replay.add(s, a, -torch.rand(E, generator=g), s, torch.zeros(E), torch.ones(E, dtype=torch.bool),
+                         executed_action=a)
+    planner = MPCPlanner(cfg.params[MPCParams.table], agent.seeds, A, env.spec.zone_radius, env.spec.stop_speed)
+    state = torch.cat([torch.rand(E, 6, generator=g) * 20 + 5, torch.zeros(E, S - 6)], 1)
+    ctx = ArbitrationContext(episode=torch.full((E,), 500), step=torch.zeros(E, dtype=torch.long),
+                             last_delta=torch.zeros(E), state=state, zone_radius=env.spec.zone_radius)
+    return agent, planner, ctx
+
+
+def timings(agent: Agent, planner: MPCPlanner, ctx: ArbitrationContext, rounds: int) -> dict[str, list[float]]:
+    """Seconds of each operation per round (interleaved)."""
+    E, K = ctx.E, planner.max_iterations
+    ops: dict[str, Callable[[], object]] = {
+        "habit (actor)": lambda: agent.actor_action(ctx.state),
+        "inverse model": lambda: agent.inverse_action(ctx.state),
+        "habit probe": lambda: planner.rollout(agent, ctx.state),
+        **{f"MPC {k} iteration{'s' if k > 1 else ''}": (lambda k=k: planner.propose(agent, ctx, torch.full((E,), k)))
+           for k in range(1, K + 1)},
+        "training update": lambda: agent.update(torch.ones(E, dtype=torch.bool)),
+    }
+    out: dict[str, list[float]] = {name: [] for name in ops}
+    for _ in range(rounds):
+        for name, op in ops.items():
+            t = time.perf_counter()
+            op()
+            out[name].append(time.perf_counter() - t)
+    return out
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--task", default="changing_target", help="a task name (its sizes: torque tasks see velocities)")
+    p.add_argument("--seeds", type=int, default=10, help="ensemble members E (every operation is for all of them)")
+    p.add_argument("--rounds", type=int, default=30, help="interleaved rounds; medians are printed")
+    p.add_argument("--threads", type=int, default=1, help="torch CPU threads")
+    args = p.parse_args()
+    if args.seeds < 1 or args.rounds < 3:
+        p.error("--seeds must be >= 1 and --rounds >= 3")
+    torch.set_num_threads(args.threads)
+    agent, planner, ctx = setup(args.task, args.seeds)
+    t = {k: statistics.median(v[1:]) for k, v in timings(agent, planner, ctx, args.rounds).items()}
+    mpc = planner.p
+    print(f"task {args.task}, E = {args.seeds}, torch threads {args.threads}, paper sizes, MPC defaults: horizon "
+          f"{mpc.horizon}, {mpc.candidates} candidates + {mpc.habit_candidates} habit, {mpc.iterations} iterations")
+    for name, sec in t.items():
+        print(f"  {name:22s} {1e3 * sec:9.3f} ms  ({sec / t['habit (actor)']:7.1f} x the habit)")
+    full = t[f"MPC {mpc.iterations} iterations" if mpc.iterations > 1 else "MPC 1 iteration"]
+    per_iteration = np.polyfit(np.arange(1, mpc.iterations + 1),
+                               [t[f"MPC {k} iteration{'s' if k > 1 else ''}"] for k in range(1, mpc.iterations + 1)],
+                               1)[0] if mpc.iterations > 1 else full
+    print(f"planning decision at the defaults / training update: {full / t['training update']:.2f} (goal <= 1)")
+    print(f"inverse model / habit: {t['inverse model'] / t['habit (actor)']:.2f} (the paper assumes 3)")
+    print(f"one MPC iteration / habit: {per_iteration / t['habit (actor)']:.1f} (agent.voc.iteration_cost)")
+
+
+if __name__ == "__main__":
+    main()
