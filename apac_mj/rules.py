@@ -186,8 +186,9 @@ class MPCParams:
     iterations: int = 4
     #: MPPI temperature: elite weights ``exp(temperature * (value - best))`` (value in cm of return).
     temperature: float = 1.0
-    #: Bounds of the sampling spread (tanh units; the first iteration samples at ``max_std``).
+    #: The sampling spread's floor (tanh units).
     min_std: float = 0.05
+    #: The sampling spread's ceiling (tanh units): the first iteration samples at it.
     max_std: float = 1.0
     #: Hidden layers (relu) of the dynamics model planned through (a residual model of the normalized motion,
     #: ``apac_mj.agent.networks.build_dynamics_model``; the paper's forward model stays what it was).
@@ -238,12 +239,12 @@ class ValueOfComputationParams:
     #: decisions then depend on the machine's speed, and a seed no longer gives the same numbers).
     cost: str = "fixed"
     #: One planning iteration's time in habit decisions (the actor's forward pass), for ``cost = "fixed"``:
-    #: bench/planning.py at the paper's sizes, 10 members, one thread: 14.8.
-    iteration_cost: float = 15.0
+    #: bench/planning.py at the paper's sizes, 10 members, one thread: 7.0.
+    iteration_cost: float = 7.0
     #: How many habit decisions' worth of time one movement step lasts: the exchange rate between computing
     #: and movement time. Time costs what a step costs: the current distance to the target (cm of return per
-    #: step). 30: the full budget (4 iterations x 15) costs the paper's 2 extra steps (planning 3, habit 1).
-    decisions_per_step: float = 30.0
+    #: step). 14: the full budget (4 iterations x 7) costs the paper's 2 extra steps (planning 3, habit 1).
+    decisions_per_step: float = 14.0
 
     def __post_init__(self) -> None:
         _require(self.table, _is_int(self.window) and self.window >= 1, "window must be an integer >= 1", self.window)

@@ -23,18 +23,19 @@ import torch
 import apac_mj  # noqa: F401  (sets MUJOCO_GL)
 from apac_mj.agent.agent import Agent
 from apac_mj.agent.planner import MPCPlanner
-from apac_mj.config import AgentConfig
-from apac_mj.kinematics import Geometry
+from apac_mj.config import AgentConfig, TrainConfig
 from apac_mj.rules import MPCParams
-from apac_mj.suite.vec_env import VecEnv
+from apac_mj.run.build import environments, make_agent
+from apac_mj.suite import spec_for
 from apac_mj.types import ArbitrationContext
 
 
 def setup(task: str, E: int, kind: str = "spac_mpc") -> tuple[Agent, MPCPlanner, ArbitrationContext]:
     """An agent at the paper's sizes with a full replay memory of random transitions, its planner and a context."""
-    env = VecEnv(task, list(range(E)))
-    cfg = AgentConfig(kind=kind)
-    agent = Agent(cfg, list(range(E)), sizes=env.sizes, geometry=Geometry.from_spec(env.spec))
+    run_cfg = TrainConfig(task=task, seeds=tuple(range(E)), agent=AgentConfig(kind=kind))
+    spec = spec_for(run_cfg)
+    env = environments(run_cfg, spec, training=False)
+    agent, cfg = make_agent(run_cfg, spec, env.sizes), run_cfg.agent
     S, A = agent.state_dim, agent.action_dim
     g = torch.Generator().manual_seed(0)
     for _ in range(cfg.batch_size // 50 + 1):

@@ -332,3 +332,14 @@ def test_the_extra_model_steps_move_only_the_dynamics_model():
     untouched = [torch.equal(p[1], q[1]) for p, q in zip(plain.dynamics_model.parameters(),
                                                         more.dynamics_model.parameters())]
     assert all(untouched), "the inactive member is left alone"
+
+
+def test_the_planning_bench_times_every_operation_side_by_side():
+    from conftest import bench_module
+
+    bench = bench_module("planning")
+    agent, planner, ctx = bench.setup("changing_target", 2)
+    times = bench.timings(agent, planner, ctx, rounds=2)
+    assert set(times) == {"habit (actor)", "inverse model", "habit probe", "MPC 1 iteration", "MPC 2 iterations",
+                          "MPC 3 iterations", "MPC 4 iterations", "training update"}
+    assert all(len(v) == 2 and min(v) > 0 for v in times.values())

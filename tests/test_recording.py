@@ -155,12 +155,12 @@ def test_write_video_writes_every_frame(tmp_path, suffix):
         render.write_video(tmp_path / "v.avi", frames)
 
 
-def _tiny_train_config(seeds=(0,)):
+def _tiny_train_config(seeds=(0,), kind: str = "apac", **agent_fields):
     from apac_mj.config import AgentConfig, TrainConfig
 
-    agent = AgentConfig(kind="apac", babbling_episodes=1, planning_episodes=1, batch_size=16, replay_size=64,
+    agent = AgentConfig(kind=kind, babbling_episodes=1, planning_episodes=1, batch_size=16, replay_size=64,
                         actor_hidden=(32, 32), critic_hidden=(32, 32), forward_hidden=(32, 32),
-                        inverse_hidden=(32, 32))
+                        inverse_hidden=(32, 32), **agent_fields)
     return TrainConfig(task="changing_target", seeds=seeds, episodes=3, agent=agent)
 
 
@@ -343,3 +343,28 @@ def test_showcase_member_prefers_most_reached_then_a_reached_first_episode():
     assert showcase_member(np.array([[False, True, True], [True, True, False], [True, True, True]])) == 2
     assert showcase_member(np.array([[False, True, True], [True, True, False]])) == 1
     assert showcase_member(np.array([[False, False], [False, False]])) == 0
+
+
+def test_a_planning_agents_recording_draws_its_plan_and_iterations(tmp_path):
+    """Training an MPC kind with a recorder: every planned step draws the chosen plan (horizon + 1 points, from
+    the hand as it was) and its candidates, and the iterations and the decision time are series."""
+    from conftest import TINY_MPC
+
+    from apac_mj.run.run_dir import RunDir, config_dict
+    from apac_mj.run.trainer import train
+
+    cfg = _tiny_train_config(seeds=(0,), kind="spac_mpc", params=TINY_MPC)
+    run_dir = tmp_path / "run"
+    steps = []
+    with R.EpisodeRecorder(RunDir(run_dir).recordings, record_every=1, config=config_dict(cfg)) as recorder:
+        train(cfg, run_dir, progress=False, hooks=[recorder], on_step=lambda info, env: steps.append(info))
+    entities, _, _ = R.read_recording(sorted((run_dir / "recordings").glob("*.rrd"))[-1])
+    assert R.PLAN in entities and R.PLAN_CANDIDATES in entities
+    strips = entities[R.PLAN].components["LineStrips2D:strips"]
+    assert all(len(row) == 1 and len(row[0]) == TINY_MPC["mpc"]["horizon"] + 1 for row in strips)
+    _, iterations = R.scalar_series(entities[R.PLAN_ITERATIONS])
+    assert set(iterations.tolist()) == {float(TINY_MPC["mpc"]["iterations"])}
+    _, ms = R.scalar_series(entities[R.DECISION_MS])
+    assert (ms > 0).all()
+    planned = [s for s in steps if s.plan is not None and s.episode[0] >= 0]
+    assert planned and all(np.allclose(s.plan["hand"][0, 0], s.state[0, :2]) for s in planned)
