@@ -8,8 +8,10 @@ file by file (metrics.parquet, eval/*.parquet, eval/summary.json, config.json an
     python bench/identity.py compare OUT/before OUT/after --ignore-key executed_action --exclude compliant \
         --exclude torque     # issue 27: a new config field; the dynamics tasks are meant to move
     python bench/identity.py compare OUT/before OUT/after --ignore-key mpc --ignore-key voc \
-        --ignore-key habit_seconds --ignore-key planning_seconds --ignore-key plan_iterations
-                         # issue 28: two new parameter tables; the measured decision times (new columns)
+        --ignore-key habit_seconds --ignore-key planning_seconds --ignore-key plan_iterations \
+        --ignore-key mean_decision_ms --ignore-key task_spec --ignore-key task_digest
+                         # issue 28: two new parameter tables, the measured decision times (new columns and
+                         # a summary key); issue 29: the run's task recorded in config.json
 
 Each cell trains 2 seeds for a few tiny episodes (babbling, planning and habit phases), in two calls (half, then
 extended to the full length: the resume path), then runs the frozen tests on a few targets. A cell that raises
