@@ -22,7 +22,8 @@ TINY = dict(nets(16, 16), batch_size=8, replay_size=64, babbling_episodes=1, pla
 #: Tinier, for runs over every task and kind: 8-unit networks, one planning episode (test_build, test_state_layout).
 TINY8 = dict(nets(8, 8), batch_size=4, replay_size=50, babbling_episodes=1, planning_episodes=1)
 #: A small model-predictive planner (the kinds that plan through a model; no effect on the others).
-TINY_MPC = {"mpc": {"horizon": 2, "candidates": 8, "elites": 2, "iterations": 2, "model_hidden": (8, 8)}}
+TINY_MPC = {"mpc": {"horizon": 2, "candidates": 8, "elites": 2, "iterations": 2, "model_hidden": (8, 8),
+                    "model_updates": 1}}
 
 
 def bench_module(name: str):

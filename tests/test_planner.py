@@ -256,10 +256,11 @@ def test_a_planning_run_killed_and_resumed_equals_the_uninterrupted_one(tmp_path
     from apac_mj.run import checkpoint
     from apac_mj.run.trainer import train
 
-    cfg = tiny_config((0, 1), episodes=6, agent=agent, planning_episodes=2,
-                      params={"mpc": {"candidates": 8, "elites": 2, "iterations": 2, "horizon": 2}})
+    from conftest import TINY_MPC
+
+    cfg = tiny_config((0, 1), episodes=4, agent=agent, planning_episodes=2, params=TINY_MPC)
     full = train(cfg, tmp_path / "full", progress=False)
-    resumed = train_killed_and_resumed(cfg, tmp_path / "cut", 5)
+    resumed = train_killed_and_resumed(cfg, tmp_path / "cut", 3)
     a, b = (pd.read_parquet(r / "metrics.parquet") for r in (full, resumed))
     pd.testing.assert_frame_equal(deterministic(a), deterministic(b), check_exact=True)
     assert (a[(a.phase == "train") & (a.episode < 2)].plan_iterations > 0).all(), "the planning phase plans"
