@@ -24,6 +24,7 @@ COMMAND_MODULES = [
     "apac_mj.commands.train",
     "apac_mj.commands.evaluate",
     "apac_mj.commands.record",
+    "apac_mj.commands.screenshot",
 ]
 
 

@@ -130,3 +130,37 @@ def test_tasks_into_a_reader_already_gone(buffered) -> None:
     assert _quiet(stderr), stderr
     assert p.returncode == BROKEN_PIPE
 
+
+
+# -- the quick look arbitrates (issue 29, item 2) -----------------------------------------------------
+
+def _quick_look_config(flags: list[str]):
+    from apac_mj.cli import build_parser
+    from apac_mj.commands.train import train_config
+
+    args = build_parser().parse_args(["train", "--task", "changing_target", "--agent", "apac", *flags,
+                                      "--out", "unused"])
+    return train_config(args)
+
+
+def test_the_readmes_quick_look_leaves_episodes_after_the_planning_phase() -> None:
+    """The README's quick look once ran 100 episodes = the paper's 100-episode planning phase: APAC planned
+    every step and the bar said habit=0.00 throughout. Its flags must leave the habit episodes to act in."""
+    from apac_mj.commands.train import planning_phase_note
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    line = next(s for s in readme.splitlines() if "A quick look: --seeds" in s)
+    cfg = _quick_look_config(line.split("A quick look:")[1].split())
+    assert cfg.episodes - cfg.agent.planning_episodes >= 0.5 * cfg.episodes
+    assert planning_phase_note(cfg) is None
+
+
+def test_train_says_when_a_run_ends_inside_the_planning_phase() -> None:
+    from apac_mj.commands.train import planning_phase_note
+
+    note = planning_phase_note(_quick_look_config(["--episodes", "100"]))
+    assert note is not None and "plans in all 100 episodes" in note and "agent.planning_episodes=40" in note
+    assert planning_phase_note(_quick_look_config(["--episodes", "101"])) is None
+    assert planning_phase_note(_quick_look_config(["--episodes", "30", "--agent", "spac"])) is None
+    assert planning_phase_note(_quick_look_config(["--episodes", "30", "--set", "agent.planning_episodes=10"])) \
+        is None

@@ -368,3 +368,29 @@ def test_a_planning_agents_recording_draws_its_plan_and_iterations(tmp_path):
     assert (ms > 0).all()
     planned = [s for s in steps if s.plan is not None and s.episode[0] >= 0]
     assert planned and all(np.allclose(s.plan["hand"][0, 0], s.state[0, :2]) for s in planned)
+
+
+def test_preview_counts_the_steps_each_members_recording_shows(tiny_run, tmp_path):
+    """The demo sizes its recording from a dry rollout's steps: a recording has one frame per step and one
+    per episode start, so the preview's steps must equal the frames it then writes, member by member."""
+    from apac_mj.recording.record import preview, record
+
+    run_dir, _ = tiny_run
+    seen = preview(run_dir, 2)
+    assert seen.steps.shape == (2, 2) and (seen.steps >= 1).all()
+    for member in range(2):
+        r = record(tmp_path / f"m{member}.rrd", run=run_dir, member=member, episodes=2, progress=False)
+        assert r.frames == int(seen.steps[member].sum()) + 2
+    early = preview(run_dir, 5, until_steps=1)  # every member has a step after its first episode
+    assert early.steps.shape == (2, 1) and (early.steps == seen.steps[:, :1]).all()
+
+
+def test_episodes_for_steps_takes_the_fewest_leading_episodes():
+    from apac_mj.recording.record import episodes_for_steps
+
+    assert episodes_for_steps(np.array([3, 1, 1, 30, 2]), 5) == 3
+    assert episodes_for_steps(np.array([3, 1, 1, 30, 2]), 6) == 4
+    assert episodes_for_steps(np.array([3, 1, 1, 30, 2]), 3) == 1
+    assert episodes_for_steps(np.array([3, 1, 1]), 60) == 3  # fewer steps than asked: all of them
+    with pytest.raises(ValueError, match="min_steps"):
+        episodes_for_steps(np.array([3]), 0)

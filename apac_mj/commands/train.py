@@ -142,8 +142,23 @@ def run_summary(run_dir: RunDir) -> dict:
     return run_dir.summary(last=max(1, min(SUMMARY_WINDOW, int(train["episode"].max()) + 1)))
 
 
+def planning_phase_note(cfg: TrainConfig) -> str | None:
+    """A note when an arbitrating kind's run ends within its planning phase (the paper's first
+    ``planning_episodes`` = 100 episodes always plan): the habit would never act (the README's quick look at
+    100 episodes once showed ``habit=0.00`` throughout). None otherwise."""
+    from apac_mj import kinds
+
+    phase = cfg.agent.planning_episodes
+    if not kinds.get(cfg.agent.kind).arbitrates or cfg.episodes > phase:
+        return None
+    return (f"note: {cfg.agent.kind} plans in all {cfg.episodes} episodes of this run (agent.planning_episodes = "
+            f"{phase}: the paper's planning phase), so its habit never acts; for a short look at arbitration "
+            f"set the phase shorter, e.g. --set agent.planning_episodes={max(1, cfg.episodes * 2 // 5)}")
+
+
 def run(args: argparse.Namespace) -> int:
     import contextlib
+    import sys
 
     from apac_mj.run.run_dir import RunDir
     from apac_mj.run.trainer import train
@@ -152,6 +167,8 @@ def run(args: argparse.Namespace) -> int:
     if args.threads < 1:
         raise ValueError(f"--threads must be >= 1, got {args.threads}")
     cfg = train_config(args)
+    if (note := planning_phase_note(cfg)) is not None:
+        print(note, file=sys.stderr)
     set_threads(args.threads)  # the whole command (the recorder's renders too), as train() does for its call
     run_dir = RunDir(args.out)
     before = run_dir.metric_rows()

@@ -62,25 +62,54 @@ def record(out: str | Path, run: str | Path | None = None, task: str | None = No
     return Recorded(out, _frames(out), video, len(recorder.frames) if video is not None else 0)
 
 
-def reached_targets(run: str | Path, episodes: int, as_episode: int | None = None) -> np.ndarray:
-    """``[E, episodes]`` bool: which of the frozen episodes :func:`record` would roll out from ``run`` end
-    inside the target zone, for every member at once (the rollouts are deterministic: no noise, no
-    learning, the run's environments where training left off). Nothing is written."""
+@dataclasses.dataclass(frozen=True)
+class Preview:
+    """What :func:`record` would roll out from a run, for every member (``[E, episodes]`` each)."""
+
+    #: The episode ended inside the target zone.
+    reached: np.ndarray
+    #: Steps the episode took (a recording shows one frame per step and one per episode start).
+    steps: np.ndarray
+
+
+def preview(run: str | Path, episodes: int, as_episode: int | None = None,
+            until_steps: int | None = None) -> Preview:
+    """The frozen episodes :func:`record` would roll out from ``run``, for every member at once (the
+    rollouts are deterministic: no noise, no learning, the run's environments where training left off);
+    ``until_steps``: stop early once every member's episodes so far took that many steps (the arrays then
+    hold the episodes rolled out). Nothing is written."""
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
     cfg, net, env, first, running = load_agent(run, None, None, 0, 0, as_episode)
     reached = np.zeros((env.E, episodes), dtype=bool)
+    steps = np.zeros((env.E, episodes), dtype=int)
 
     def on_step(info: StepInfo, _: VecEnv) -> None:
-        reached[:, k] |= info.done & info.reached
+        reached[:, k] |= info.active & info.done & info.reached
+        steps[:, k] += info.active
 
-    def on_episode_start(members: np.ndarray, _: VecEnv) -> None:
-        nonlocal k
-        k += 1
+    loop = EpisodeLoop(net, kinds.arbitrator_for(cfg.agent), env, hooks=[FunctionHook(on_step)], adapt=False)
+    loop.load_state_dict(running)
+    for k in range(episodes):
+        loop.run_episode(np.ones(env.E, dtype=bool), first + k)
+        if until_steps is not None and steps[:, :k + 1].sum(axis=1).min() >= until_steps:
+            return Preview(reached[:, :k + 1], steps[:, :k + 1])
+    return Preview(reached, steps)
 
-    k = -1
-    frozen_episodes(cfg, net, env, running, first, episodes, FunctionHook(on_step, on_episode_start), False)
-    return reached
+
+def reached_targets(run: str | Path, episodes: int, as_episode: int | None = None) -> np.ndarray:
+    """``[E, episodes]`` bool: which of the frozen episodes :func:`record` would roll out from ``run`` end
+    inside the target zone (:func:`preview`'s ``reached``)."""
+    return preview(run, episodes, as_episode).reached
+
+
+def episodes_for_steps(steps: np.ndarray, min_steps: int) -> int:
+    """The fewest leading episodes (of one member's ``steps``) that together take ``min_steps`` steps;
+    all of them when they take fewer."""
+    if min_steps < 1:
+        raise ValueError(f"min_steps must be >= 1, got {min_steps}")
+    total = np.cumsum(steps)
+    return int(min(np.searchsorted(total, min_steps) + 1, len(steps)))
 
 
 def frozen_episodes(cfg: TrainConfig, net: Agent, env: VecEnv, running: dict[str, Any], first: int, episodes: int,

@@ -214,6 +214,11 @@ def forward_model_error(rec: StepRecord) -> float:
     return float(np.linalg.norm(rec.predicted_arm[:2] - rec.true_arm[:2]))
 
 
+#: Frames per second the viewer plays a recording at: one frame per step of the arm's 100 ms control
+#: interval (plant.control_interval), i.e. real time (the viewer's own default, 30, plays 3x too fast).
+PLAYBACK_FPS = 10.0
+
+
 def default_blueprint(plane_size: Sequence[float] = (30.0, 30.0)) -> rrb.Blueprint:
     """Two rows: the render, the plane view and the arbitration's three series on top (what a reader looks
     at first); the events log and the plant's and the checks' series, one tab each, below. The time
@@ -254,7 +259,7 @@ def default_blueprint(plane_size: Sequence[float] = (30.0, 30.0)) -> rrb.Bluepri
             rrb.Horizontal(rrb.TextLogView(origin=EVENTS, name="events"), details, column_shares=[1, 1.4]),
             row_shares=[2.4, 1],
         ),
-        rrb.TimePanel(timeline="frame", play_state="following", state="collapsed"),
+        rrb.TimePanel(timeline="frame", play_state="following", state="collapsed", fps=PLAYBACK_FPS),
         collapse_panels=True,
     )
 
