@@ -8,7 +8,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import math
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -299,12 +299,18 @@ ADDED = {"bf16_networks": list(TRAINED_NETWORKS),
          # the command, but their networks predate the velocity inputs and cannot be loaded any more)
          "executed_action": "joint_change"}
 
+#: Fields added to a parameter table after it was released: ``table -> field -> f(agent dict)``, the value that
+#: behaves as that release did. Issue 28's ``mpc`` table had no ``model_weight_decay``: its dynamics model was
+#: decayed by the paper's ``weight_decay``, as every network.
+TABLE_ADDED: dict[str, dict[str, Callable[[dict[str, Any]], Any]]] = {
+    "mpc": {"model_weight_decay": lambda agent: agent.get("weight_decay", 1e-3)}}
+
 
 def migrate(d: dict[str, Any]) -> dict[str, Any]:
     """A config dict (config.json, cell.json's run, a checkpoint's) of any release in today's shape:
     ``agent.agent`` -> ``agent.kind``, the flat rule fields (:data:`MOVED`) -> their tables, fields added
-    since (:data:`ADDED`) at the value the release behaved as, parameter tables registered since at their
-    defaults. Pure and idempotent; every value is kept."""
+    since (:data:`ADDED`, and to a table: :data:`TABLE_ADDED`) at the value the release behaved as, parameter
+    tables registered since at their defaults. Pure and idempotent; every value is kept."""
     agent = dict(d.get("agent", {}))
     if "agent" in agent:
         agent["kind"] = agent.pop("agent")
@@ -316,6 +322,9 @@ def migrate(d: dict[str, Any]) -> dict[str, Any]:
             value = agent.pop(old)
             for table, field in places:
                 agent[table] = {**agent.get(table, {}), field: value}
+    for table, fields in TABLE_ADDED.items():
+        if isinstance(agent.get(table), dict):
+            agent[table] = {**{f: value(agent) for f, value in fields.items()}, **agent[table]}
     if agent:  # tables registered since (issue 28: mpc, voc), at their defaults: they act only in their own kinds
         for name, cls in rules.tables().items():
             agent.setdefault(name, {f.name: _json(getattr(cls(), f.name)) for f in dataclasses.fields(cls)})

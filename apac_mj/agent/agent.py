@@ -98,14 +98,17 @@ class Agent:
         self.dynamics_model: nn.Module | None = None
         #: Extra Adam steps of the dynamics model alone after every update (``mpc.model_updates``; 0: none).
         self.model_updates = 0
+        #: L2 weight decay per trained network: the paper's ``weight_decay`` on its own networks.
+        decay = {n: cfg.weight_decay for n in self.trained}
         if kinds.get(cfg.kind).planner == "mpc":
             mpc = cfg.params[MPCParams.table]
             self.model_updates = mpc.model_updates
             self.dynamics_model = build_dynamics_model(mpc.model_hidden, init, A, X).to(self.device)
             self.trained["dynamics_model"] = mpc.model_lr
+            decay["dynamics_model"] = mpc.model_weight_decay
             self.networks = (*NETWORKS, "dynamics_model")
         self.optimizer, self._views = _member_adam(
-            {n: (getattr(self, n), lr) for n, lr in self.trained.items()}, self.E, cfg.weight_decay)
+            {n: (getattr(self, n), lr, decay[n]) for n, lr in self.trained.items()}, self.E)
         self.replay = EnsembleReplay([g[1] for g in gens], cfg.replay_size, S, A, device=self.device)
         self.noise = OUNoise([g[2] for g in gens], dim=A, theta=cfg.ou_theta, sigma=cfg.ou_sigma, device=self.device)
         self._soft_pairs = [(t.detach(), o.detach()) for net, tnet in
@@ -430,16 +433,18 @@ class Agent:
         self.noise.load_state_dict(d["noise"])
 
 
-def _member_adam(nets: dict[str, tuple[nn.Module, float]], E: int,
-                 weight_decay: float) -> tuple[torch.optim.Adam, dict[str, list[tuple[torch.Tensor, ...]]]]:
-    """``torch.optim.Adam`` over per-member views ``p[k]`` of every parameter (one param group per network,
-    its learning rate; L2 weight decay added to the gradient as in Adam's ``weight_decay``).
+def _member_adam(nets: dict[str, tuple[nn.Module, float, float]], E: int,
+                 ) -> tuple[torch.optim.Adam, dict[str, list[tuple[torch.Tensor, ...]]]]:
+    """``torch.optim.Adam`` over per-member views ``p[k]`` of every parameter (one param group per network
+    ``name -> (network, learning rate, L2 weight decay)``, the decay added to the gradient as in Adam's
+    ``weight_decay``).
 
     Adam keeps moments and the step count per tensor, so each member has its own; a view whose
     ``.grad`` is None is skipped, so members that are not updated stay bit-identical."""
-    views = {n: [p.detach().unbind(0) for p in net.parameters()] for n, (net, _) in nets.items()}
-    groups = [{"params": [v for vs in views[n] for v in vs], "lr": lr} for n, (_, lr) in nets.items()]
-    opt = torch.optim.Adam(groups, weight_decay=weight_decay, fused=True)
+    views = {n: [p.detach().unbind(0) for p in net.parameters()] for n, (net, _, _) in nets.items()}
+    groups = [{"params": [v for vs in views[n] for v in vs], "lr": lr, "weight_decay": wd}
+              for n, (_, lr, wd) in nets.items()]
+    opt = torch.optim.Adam(groups, fused=True)
     return opt, views
 
 
