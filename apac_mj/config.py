@@ -300,10 +300,10 @@ ADDED = {"bf16_networks": list(TRAINED_NETWORKS),
          "executed_action": "joint_change"}
 
 #: Fields added to a parameter table after it was released: ``table -> field -> f(agent dict)``, the value that
-#: behaves as that release did. Issue 28's ``mpc`` table had no ``model_weight_decay``: its dynamics model was
-#: decayed by the paper's ``weight_decay``, as every network.
+#: behaves as that release did. Issue 28's ``mpc`` table had no ``model_weight_decay`` (its dynamics model was
+#: decayed by the paper's ``weight_decay``, as every network) and no ``model_heads`` (one model).
 TABLE_ADDED: dict[str, dict[str, Callable[[dict[str, Any]], Any]]] = {
-    "mpc": {"model_weight_decay": lambda agent: agent.get("weight_decay", 1e-3)}}
+    "mpc": {"model_weight_decay": lambda agent: agent.get("weight_decay", 1e-3), "model_heads": lambda agent: 1}}
 
 
 def migrate(d: dict[str, Any]) -> dict[str, Any]:

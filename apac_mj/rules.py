@@ -205,6 +205,9 @@ class MPCParams:
     #: at 0: 0.37 cm, 20 deg/s; changing_target after 650 episodes: 0.68 cm, 2000 more steps at 0: 0.13 cm),
     #: far above the 0.5 cm zone it plans into. Runs made before this field resume with the 1e-3 they had.
     model_weight_decay: float = 0.0
+    #: Dynamics models per member, trained side by side from their own initializations, planned through by
+    #: their mean (a model ensemble; 1: one model).
+    model_heads: int = 1
 
     def __post_init__(self) -> None:
         if isinstance(self.model_hidden, (list, tuple)):
@@ -216,6 +219,8 @@ class MPCParams:
                  self.model_lr)
         _require(self.table, _is_int(self.model_updates) and self.model_updates >= 0,
                  "model_updates must be an integer >= 0", self.model_updates)
+        _require(self.table, _is_int(self.model_heads) and 1 <= self.model_heads <= 32,
+                 "model_heads must be an integer in [1, 32]", self.model_heads)
         _require(self.table, _finite(self.model_weight_decay) and 0 <= self.model_weight_decay <= 1,
                  "model_weight_decay must be in [0, 1]", self.model_weight_decay)
         for name in ("horizon", "candidates", "iterations"):

@@ -136,6 +136,7 @@ def test_the_planner_stops_only_where_the_stop_criterion_holds():
     ("iterations", 0, "iterations must be an integer >= 1"),
     ("min_std", 2.0, r"min_std must be in \(0, max_std\]"),
     ("model_weight_decay", -1e-3, r"model_weight_decay must be in \[0, 1\]"),
+    ("model_heads", 0, r"model_heads must be an integer in \[1, 32\]"),
 ])
 def test_bad_planning_settings_are_refused(field, value, message):
     with pytest.raises(ValueError, match=f"agent.mpc.{message}"):
@@ -349,10 +350,50 @@ def test_the_dynamics_model_has_its_own_weight_decay_and_old_runs_keep_theirs():
     assert decay == {"actor": 1e-3, "critic": 1e-3, "forward_model": 1e-3, "inverse_model": 1e-3,
                      "dynamics_model": 0.0}
     old = to_dict(TrainConfig(agent=AgentConfig(kind="spac_mpc", weight_decay=2e-3)))
-    del old["agent"]["mpc"]["model_weight_decay"]
+    del old["agent"]["mpc"]["model_weight_decay"], old["agent"]["mpc"]["model_heads"]
     migrated = train_config_from_dict(migrate(old))
     assert migrated.agent.params["mpc"].model_weight_decay == 2e-3
+    assert migrated.agent.params["mpc"].model_heads == 1
     assert train_config_from_dict(migrate(to_dict(TrainConfig()))).agent.params["mpc"].model_weight_decay == 0.0
+
+
+def test_dynamics_heads_are_planned_through_by_their_mean_and_each_learns():
+    """``mpc.model_heads`` = 3: three models per member from their own initializations (the other networks as
+    with one); ``imagine`` steps their mean; the loss is the mean of each head's own error; an update lowers
+    every head's error on a batch it can fit."""
+    from apac_mj.agent.networks import DynamicsHeads
+    from apac_mj.kinematics import Sizes
+
+    sizes = Sizes(state_dim=8, extra_scale=(500.0, 500.0), action_bound=2.0, angle_actions=False)
+    one = Agent(AgentConfig(kind="spac_mpc", **TINY), [0, 1], sizes=sizes)
+    three = Agent(AgentConfig(kind="spac_mpc", **TINY, params={"mpc": {"model_heads": 3}}), [0, 1], sizes=sizes)
+    model = three.dynamics_model
+    assert isinstance(model, DynamicsHeads) and len(model.heads) == 3
+    for p, q in zip(one.dynamics_model.parameters(), model.heads[0].parameters()):
+        assert torch.equal(p, q), "the first head is the single model"
+    assert not torch.equal(model.heads[0].layers[0].weight, model.heads[1].layers[0].weight)
+    for name in ("actor", "critic", "forward_model", "inverse_model"):
+        for p, q in zip(getattr(one, name).parameters(), getattr(three, name).parameters()):
+            assert torch.equal(p, q), name
+    g = torch.Generator().manual_seed(1)
+    s = torch.cat([torch.rand(2, 16, 6, generator=g) * 30, torch.randn(2, 16, 2, generator=g) * 300], -1)
+    a = torch.rand(2, 16, 2, generator=g) * 4 - 2
+    x = three._state(s)
+    inputs = torch.cat([x[..., :4], x[..., 6:], a / 2.0], -1)
+    each = model.each(inputs)
+    nxt = three.imagine(s, a)
+    torch.testing.assert_close(three._state(nxt)[..., :4], x[..., :4] + each.mean(0)[..., :4])
+    s2 = s + 1.0
+    target = three._motion_x(three._state(s2)) - three._motion_x(x)
+    per_head = (each - target).pow(2).mean((2, 3))
+    torch.testing.assert_close(three._dynamics_loss(x, a, s2), per_head.mean(0))
+    batch = {"state": s, "action": a, "next_state": s2, "reward": torch.zeros(2, 16), "done": torch.zeros(2, 16),
+             "executed_action": a}
+    three.gradients(batch, [0, 1])
+    three.optimizer.step()
+    with torch.no_grad():
+        after = (model.each(inputs) - target).pow(2).mean((2, 3))
+    assert (after < per_head.detach()).all(), "every head of every member learned"
 
 
 def test_the_planning_bench_times_every_operation_side_by_side():

@@ -34,8 +34,8 @@ from apac_mj.config import PRECISIONS, AgentConfig
 from apac_mj.kinematics import Geometry, Sizes
 from apac_mj.types import ARM, ELBOW, END, EXTRA, LOSSES, MOTION_EXTRA, POSITIONS, TARGET
 from apac_mj import kinds
-from apac_mj.agent.networks import (build_actor, build_critic, build_dynamics_model, build_forward_model,
-                                    build_inverse_model)
+from apac_mj.agent.networks import (DynamicsHeads, build_actor, build_critic, build_dynamics_model,
+                                    build_forward_model, build_inverse_model)
 from apac_mj.rules import MPCParams
 from apac_mj.agent.noise import OUNoise
 
@@ -103,7 +103,7 @@ class Agent:
         if kinds.get(cfg.kind).planner == "mpc":
             mpc = cfg.params[MPCParams.table]
             self.model_updates = mpc.model_updates
-            self.dynamics_model = build_dynamics_model(mpc.model_hidden, init, A, X).to(self.device)
+            self.dynamics_model = build_dynamics_model(mpc.model_hidden, init, A, X, mpc.model_heads).to(self.device)
             self.trained["dynamics_model"] = mpc.model_lr
             decay["dynamics_model"] = mpc.model_weight_decay
             self.networks = (*NETWORKS, "dynamics_model")
@@ -327,9 +327,13 @@ class Agent:
 
     def _dynamics_loss(self, x: torch.Tensor, a: torch.Tensor, s2: torch.Tensor) -> torch.Tensor:
         """The dynamics model's error ``[E]`` on the motion's change (normalized: every entry of order 1) from
-        the network-input state ``x`` and the action ``a`` to the raw next state ``s2``."""
-        change = self.dynamics_model(torch.cat([*self._motion(x), self._act(a)], -1)).float()
-        return (change - (self._motion_x(self._state(s2)) - self._motion_x(x))).pow(2).mean((1, 2))
+        the network-input state ``x`` and the action ``a`` to the raw next state ``s2``; with several heads, the
+        mean of each head's own error (each head learns to predict, not only their mean)."""
+        inputs, model = torch.cat([*self._motion(x), self._act(a)], -1), self.dynamics_model
+        target = self._motion_x(self._state(s2)) - self._motion_x(x)
+        if isinstance(model, DynamicsHeads):
+            return (model.each(inputs).float() - target).pow(2).mean((2, 3)).mean(0)
+        return (model(inputs).float() - target).pow(2).mean((1, 2))
 
     def gradients(self, batch: dict[str, torch.Tensor], members: Sequence[int]) -> dict[str, torch.Tensor]:
         """Losses ``[E]`` on ``batch`` and, by autograd, their gradients: each network's ``.grad``

@@ -153,12 +153,37 @@ def build_forward_model(hidden: Sequence[int], scale: float, gens: Sequence[torc
     return EnsembleMLP([4 + extra_dim + action_dim, *hidden, 4 + extra_dim], "sigmoid", "sigmoid", scale, gens)
 
 
+class DynamicsHeads(nn.Module):
+    """``K`` dynamics models per member (each an :class:`EnsembleMLP` over the members), trained side by side
+    on the same minibatches from their own initializations; the prediction is their mean (a model ensemble,
+    PETS's, propagated by its expectation). :meth:`each` gives every head's, ``[K, ...]``."""
+
+    def __init__(self, heads: Sequence[EnsembleMLP]) -> None:
+        super().__init__()
+        if len(heads) < 2:
+            raise ValueError(f"DynamicsHeads needs two heads or more, got {len(heads)} (one: the plain model)")
+        self.heads = nn.ModuleList(heads)
+
+    def each(self, x: torch.Tensor) -> torch.Tensor:
+        return torch.stack([h(x) for h in self.heads])
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.each(x).mean(0)
+
+
 def build_dynamics_model(hidden: Sequence[int], gens: Sequence[torch.Generator], action_dim: int = 2,
-                         extra_dim: int = 0) -> EnsembleMLP:
+                         extra_dim: int = 0, heads: int = 1) -> nn.Module:
     """The planning system's dynamics model (beyond the paper; kinds that plan through a model): the motion
     [end, elbow, extra] and the action, normalized (6 + extra) -> relu -> relu -> the motion's change over the
-    step (4 + extra), normalized, linear: a residual model, as model-based RL's dynamics models are."""
-    return EnsembleMLP([4 + extra_dim + action_dim, *hidden, 4 + extra_dim], "relu", "linear", 1.0, gens)
+    step (4 + extra), normalized, linear: a residual model, as model-based RL's dynamics models are. ``heads``
+    > 1: that many, initialized one after another from the members' generators, averaged
+    (:class:`DynamicsHeads`); 1: the single model (its parameters as before the heads existed)."""
+    sizes = [4 + extra_dim + action_dim, *hidden, 4 + extra_dim]
+    if heads < 1:
+        raise ValueError(f"heads must be >= 1, got {heads}")
+    if heads == 1:
+        return EnsembleMLP(sizes, "relu", "linear", 1.0, gens)
+    return DynamicsHeads([EnsembleMLP(sizes, "relu", "linear", 1.0, gens) for _ in range(heads)])
 
 
 def build_inverse_model(hidden: Sequence[int], gens: Sequence[torch.Generator], action_dim: int = 2,
