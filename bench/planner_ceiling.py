@@ -20,7 +20,6 @@ project's test), mean steps, mean final distance, seconds. The same seed gives t
 from __future__ import annotations
 
 import argparse
-import csv
 import dataclasses
 import sys
 import time
@@ -172,13 +171,7 @@ def main(argv: Sequence[str] | None = None) -> list[dict]:
             print(" ".join(f"{k}={row[k]:.2f}" if isinstance(row[k], float) else f"{k}={row[k]}" for k in FIELDS),
                   flush=True)
             if args.out is not None:
-                new = not args.out.exists()
-                args.out.parent.mkdir(parents=True, exist_ok=True)
-                with args.out.open("a", newline="") as f:
-                    w = csv.DictWriter(f, fieldnames=FIELDS)
-                    if new:
-                        w.writeheader()
-                    w.writerow(row)
+                ceiling.append_csv(row, args.out, FIELDS)
     return rows
 
 
