@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 from tqdm.auto import tqdm
@@ -88,13 +88,17 @@ def preview(run: str | Path, episodes: int, as_episode: int | None = None,
         reached[:, k] |= info.active & info.done & info.reached
         steps[:, k] += info.active
 
-    loop = EpisodeLoop(net, kinds.arbitrator_for(cfg.agent), env, hooks=[FunctionHook(on_step)], adapt=False)
-    loop.load_state_dict(running)
-    for k in range(episodes):
-        loop.run_episode(np.ones(env.E, dtype=bool), first + k)
-        if until_steps is not None and steps[:, :k + 1].sum(axis=1).min() >= until_steps:
-            return Preview(reached[:, :k + 1], steps[:, :k + 1])
-    return Preview(reached, steps)
+    def on_episode_start(members: np.ndarray, _: VecEnv) -> None:
+        nonlocal k
+        k += 1
+
+    def enough(done: int) -> bool:
+        return until_steps is not None and steps[:, :done].sum(axis=1).min() >= until_steps
+
+    k = -1
+    frozen_episodes(cfg, net, env, running, first, episodes, FunctionHook(on_step, on_episode_start), False,
+                    until=enough)
+    return Preview(reached[:, :k + 1], steps[:, :k + 1])
 
 
 def reached_targets(run: str | Path, episodes: int, as_episode: int | None = None) -> np.ndarray:
@@ -113,13 +117,16 @@ def episodes_for_steps(steps: np.ndarray, min_steps: int) -> int:
 
 
 def frozen_episodes(cfg: TrainConfig, net: Agent, env: VecEnv, running: dict[str, Any], first: int, episodes: int,
-                    hook: Hook, progress: bool) -> None:
+                    hook: Hook, progress: bool, until: Callable[[int], bool] | None = None) -> None:
     """Roll out ``episodes`` frozen episodes of every member (no noise, no learning), the arbitrator seeing
-    training episodes ``first``, ``first + 1``, ...; ``hook`` (a :class:`apac_mj.run.rollout.Hook`) sees them."""
+    training episodes ``first``, ``first + 1``, ...; ``hook`` (a :class:`apac_mj.run.rollout.Hook`) sees them;
+    ``until(n)``: stop early once it is true after ``n`` episodes."""
     loop = EpisodeLoop(net, kinds.arbitrator_for(cfg.agent), env, hooks=[hook], adapt=False)
     loop.load_state_dict(running)
     for k in tqdm(range(episodes), desc="record", unit="episode", disable=not progress):
         loop.run_episode(np.ones(env.E, dtype=bool), first + k)
+        if until is not None and until(k + 1):
+            return
 
 
 def showcase_member(reached: np.ndarray) -> int:
