@@ -98,7 +98,8 @@ class ArbitrationContext:
     #: The state the agent acts on ``[E, 6 + extra]`` (the integrator's estimate, then the task's extra
     #: observations; read it through :data:`END`, :data:`TARGET`, ...; on the agent's device); None if not given.
     state: torch.Tensor | None = None
-    #: The actor's proposal ``[E, 2]`` (degrees, no noise) in ``state``; None if not given.
+    #: The actor's proposal ``[E, 2]`` (degrees, no noise) in ``state``; None if not given (the episode loop gives
+    #: it only to rules that read it, :attr:`Arbitrator.needs_habit_action`).
     habit_action: torch.Tensor | None = None
     #: The forward model as a checker: action ``[E, 2]`` -> predicted end effector ``[E, 2]`` after it
     #: (from ``state``); None if not given.
@@ -216,6 +217,11 @@ class Arbitrator(abc.ABC):
     A rule implements :meth:`use_habit`; a rule with running statistics also :meth:`observe`,
     :meth:`state_dict` and :meth:`load_state_dict` (the defaults: nothing learned, nothing kept).
     """
+
+    #: Whether :meth:`use_habit` reads :attr:`ArbitrationContext.habit_action` (the actor's proposal before the
+    #: decision). False (the default): the episode loop computes the actor's pass only where the habit acts, so a
+    #: step's measured decision time holds no habit pass that no member uses.
+    needs_habit_action: bool = False
 
     @abc.abstractmethod
     def use_habit(self, ctx: ArbitrationContext) -> Decision:

@@ -174,3 +174,61 @@ def test_kind_names_appear_only_in_the_registry_and_the_papers_table():
             if isinstance(node, ast.Constant) and node.value in kinds.BUILTIN and id(node) not in allowed:
                 found.append(f"{path.relative_to(PACKAGE.parent)}:{node.lineno} {node.value!r}")
     assert not found, "agent kind names outside the registry: " + ", ".join(found)
+
+
+class _CountingAgent:
+    """What select_action asks of an agent: the actor's and the inverse model's proposals, counted."""
+
+    def __init__(self, E: int) -> None:
+        import types
+
+        self.E, self.actor_calls = E, 0
+        self.sizes = types.SimpleNamespace(action_bound=1e9)
+
+    def actor_action(self, state):
+        self.actor_calls += 1
+        return torch.full((self.E, 2), 1.0)
+
+    def inverse_action(self, state):
+        return torch.full((self.E, 2), 2.0)
+
+
+@pytest.mark.parametrize("rule, habit, calls", [
+    ("spac", [False, False, False], 0), ("ddpg", [True, True, True], 1), ("mixed", [True, False, False], 1)])
+def test_the_actors_pass_runs_only_where_a_habit_acts(rule, habit, calls):
+    """A kind that always plans (SPAC) is not charged a habit pass it never uses: the measured decision time of
+    the paper's planner holds the inverse model's pass alone. The actions are those of the old code (the
+    actor's where the habit acts, else the planner's)."""
+    from apac_mj.run.rollout import select_action
+
+    class Mixed(Arbitrator):
+        def use_habit(self, ctx):
+            return Decision(torch.tensor([True, False, False]))
+
+    arbitrator = Mixed() if rule == "mixed" else kinds.arbitrator_for(AgentConfig(kind=rule))
+    assert arbitrator.needs_habit_action is False
+    agent = _CountingAgent(3)
+    ctx = ArbitrationContext(torch.full((3,), 200), torch.full((3,), 5), torch.zeros(3), state=torch.zeros(3, 6))
+    choice = select_action(agent, arbitrator, ctx, np.ones(3, dtype=bool), explore=False)
+    assert agent.actor_calls == calls
+    assert choice.decision.habit.tolist() == habit
+    assert choice.action[:, 0].tolist() == [1.0 if h else 2.0 for h in habit]
+
+
+def test_a_rule_that_reads_the_habits_proposal_gets_it_before_deciding():
+    """vision_aware's dark check reads the habit's proposal (the context carries it); its suppressing form and
+    the paper's rules do not ask for it, and the episode loop then builds the context without the actor's pass."""
+    from apac_mj.run.rollout import EpisodeState
+
+    def rule(dark):
+        return kinds.arbitrator_for(AgentConfig(kind="apac_vision", params={"vision_aware": {"dark": dark}}))
+
+    assert rule("check").needs_habit_action is True
+    assert rule("suppress").needs_habit_action is False
+    assert kinds.arbitrator_for(AgentConfig(kind="apac")).needs_habit_action is False
+    agent = _CountingAgent(2)
+    st = EpisodeState.fresh(2, torch.device("cpu"))
+    assert st.context(np.zeros(2, dtype=np.int64), agent, 0.5, habit_action=False).habit_action is None
+    assert agent.actor_calls == 0
+    assert st.context(np.zeros(2, dtype=np.int64), agent, 0.5).habit_action.tolist() == [[1.0, 1.0]] * 2
+    assert agent.actor_calls == 1

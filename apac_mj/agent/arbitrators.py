@@ -372,6 +372,11 @@ class VisionAwareArbitrator(Arbitrator):
                              "with another rule (e.g. apac)")
         self.base, self.dark, self.ratio = base, params.dark, params.check_ratio
 
+    @property
+    def needs_habit_action(self) -> bool:  # type: ignore[override]
+        """The dark check reads the habit's proposal before deciding; the base rule may too."""
+        return self.dark == "check" or self.base.needs_habit_action
+
     def use_habit(self, ctx: ArbitrationContext) -> Decision:
         decision = self.base.use_habit(ctx)
         habit = torch.as_tensor(decision.habit, dtype=torch.bool)

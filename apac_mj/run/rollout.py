@@ -186,10 +186,12 @@ class EpisodeState:
         self.step += mask
 
     def context(self, episode: np.ndarray, agent: Policy, zone_radius: float,
-                planner: Planner | None = None) -> ArbitrationContext:
+                planner: Planner | None = None, habit_action: bool = True) -> ArbitrationContext:
         """The arbitrator's view of every member at this step (``episode`` as the arbitrator reads it;
         ``zone_radius``: the target zone's, cm, :attr:`EpisodeLoop.zone_radius`; ``planner``: the one whose
-        model imagines the habit's sequence, :attr:`ArbitrationContext.habit_probe`)."""
+        model imagines the habit's sequence, :attr:`ArbitrationContext.habit_probe`; ``habit_action``: compute
+        the actor's proposal before the decision (:attr:`Arbitrator.needs_habit_action`; else None, and
+        :func:`select_action` computes it after the decision, only where the habit acts))."""
         state = self.state
         probe = None if planner is None else (lambda: planner.probe(agent, state))
 
@@ -202,7 +204,8 @@ class EpisodeState:
                                   recent_deltas=torch.tensor(self.recent_deltas, dtype=torch.float32),
                                   vision=torch.tensor(self.vision), state=state,
                                   forward_error=torch.tensor(self.forward_error, dtype=torch.float32),
-                                  habit_action=agent.actor_action(state), predict_end=predict_end,
+                                  habit_action=agent.actor_action(state) if habit_action else None,
+                                  predict_end=predict_end,
                                   habit_probe=probe, zone_radius=float(zone_radius))
 
 
@@ -227,7 +230,9 @@ class Choice:
 def select_action(agent: Policy, arbitrator: Arbitrator, ctx: ArbitrationContext, active: np.ndarray,
                   explore: bool, planner: Planner | None = None, habit_seconds: float = 0.0) -> Choice:
     """The arbitrator's choice between the actor's and the planner's proposals (+ OU noise); ``planner``
-    default the paper's inverse model; ``habit_seconds``: the measured time of the actor's pass (all members)."""
+    default the paper's inverse model; ``habit_seconds``: the measured time of building ``ctx`` (with the actor's
+    pass where it carries ``habit_action``). Without ``ctx.habit_action`` the actor's pass runs (and is timed)
+    only when some member's habit acts: a kind that always plans is not charged for a habit it never uses."""
     state = ctx.state
     t0 = time.perf_counter()
     decision = arbitrator.use_habit(ctx)
@@ -242,11 +247,15 @@ def select_action(agent: Policy, arbitrator: Arbitrator, ctx: ArbitrationContext
     arbitration_seconds = time.perf_counter() - t0
     planner = planner or InversePlanner()
     budget = _budget(decision, habit, planner)
-    habit_action = agent.actor_action(state) if ctx.habit_action is None else ctx.habit_action
+    t0 = time.perf_counter()
+    habit_action = ctx.habit_action
+    if habit_action is None and bool(habit.any()):
+        habit_action = agent.actor_action(state)
+    arbitration_seconds += time.perf_counter() - t0
     t0 = time.perf_counter()
     plan = planner.propose(agent, ctx, budget)
     plan_seconds = time.perf_counter() - t0
-    proposal = torch.where(habit[:, None], habit_action, plan.action)
+    proposal = plan.action if habit_action is None else torch.where(habit[:, None], habit_action, plan.action)
     if explore:
         sigma = agent.cfg.ou_sigma_at(ctx.episode.numpy())
         proposal = proposal + agent.noise.sample(torch.as_tensor(active), sigma).to(state.device)
@@ -365,7 +374,7 @@ class EpisodeLoop:
         replace the action (the trainer's babbling), step the ``active`` members."""
         t0 = time.perf_counter()
         ctx = st.context(episode if arbitration_episode is None else arbitration_episode, self.agent,
-                         self.zone_radius, self.planner)
+                         self.zone_radius, self.planner, habit_action=self.arbitrator.needs_habit_action)
         choice = select_action(self.agent, self.arbitrator, ctx, active, explore, self.planner,
                                habit_seconds=time.perf_counter() - t0)
         action, habit, inputs = choice.action, choice.decision.habit, decision_inputs(choice.decision)
