@@ -244,14 +244,14 @@ def select_action(agent: Policy, arbitrator: Arbitrator, ctx: ArbitrationContext
     if tuple(habit.shape) != (ctx.E,):
         raise ValueError(f"{type(arbitrator).__name__}.use_habit must return [E] = ({ctx.E},) bools, "
                          f"got shape {tuple(habit.shape)}")
-    arbitration_seconds = time.perf_counter() - t0
+    common_seconds = habit_seconds + time.perf_counter() - t0  # the context, the rule (every member)
     planner = planner or InversePlanner()
     budget = _budget(decision, habit, planner)
     t0 = time.perf_counter()
     habit_action = ctx.habit_action
     if habit_action is None and bool(habit.any()):
         habit_action = agent.actor_action(state)
-    arbitration_seconds += time.perf_counter() - t0
+    common_seconds += time.perf_counter() - t0  # the actor's pass, where a habit acts
     t0 = time.perf_counter()
     plan = planner.propose(agent, ctx, budget)
     plan_seconds = time.perf_counter() - t0
@@ -261,7 +261,7 @@ def select_action(agent: Policy, arbitrator: Arbitrator, ctx: ArbitrationContext
         proposal = proposal + agent.noise.sample(torch.as_tensor(active), sigma).to(state.device)
     bound = agent.sizes.action_bound
     iterations = plan.iterations.cpu().numpy() * ~habit.cpu().numpy()
-    seconds = _shares(habit_seconds + arbitration_seconds, plan_seconds, iterations)
+    seconds = _shares(common_seconds, plan_seconds, iterations)
     gains = None if plan.habit_value is None else (plan.best_values - plan.habit_value[:, None]).numpy()
     return Choice(proposal.clamp(-bound, bound), Decision(habit, dict(decision.inputs), decision.iterations),
                   iterations, seconds, gains)
