@@ -140,8 +140,13 @@ class Sizes:
     #: The scale of each extra entry (the scale its observation spec carries, e.g. 500 deg/s for joint velocities): the
     #: networks read ``extra / extra_scale``, order 1 as the normalized positions. One per extra entry.
     extra_scale: tuple[float, ...] = ()
+    #: Width of a cued task's cue (one-hot, the state's last entries; :attr:`cue`): the habit (actor and critic)
+    #: reads the cue in place of the target's position, the internal models read neither. 0: no cue.
+    cue_dim: int = 0
 
     def __post_init__(self) -> None:
+        if not 0 <= self.cue_dim <= self.extra_dim:
+            raise ValueError(f"Sizes: cue_dim must be in 0..{self.extra_dim} (the extra entries), got {self.cue_dim}")
         if len(self.extra_scale) != self.extra_dim:
             raise ValueError(f"Sizes: {self.extra_dim} extra state entries need as many scales, got "
                              f"extra_scale={self.extra_scale}")
@@ -153,6 +158,22 @@ class Sizes:
         """Observed entries beyond the paper's 6 positions."""
         return self.state_dim - 6
 
+    @property
+    def motion_dim(self) -> int:
+        """Extra entries that describe the arm's motion (the joint velocities, where observed): the extra ones
+        before the cue; what the forward, inverse and dynamics models read and predict beyond the positions."""
+        return self.extra_dim - self.cue_dim
+
+    @property
+    def motion(self) -> slice:
+        """Where the motion's extra entries lie in the state."""
+        return slice(6, 6 + self.motion_dim)
+
+    @property
+    def cue(self) -> slice:
+        """Where the cue lies in the state (empty: none)."""
+        return slice(6 + self.motion_dim, self.state_dim)
+
     @classmethod
     def from_specs(cls, observation_spec, action_spec) -> "Sizes":
         """Sizes from a dm_env environment's ``observation_spec()`` (a dict of arrays whose first three are
@@ -162,6 +183,9 @@ class Sizes:
             raise ValueError(f"the agent needs the observations end_effector, elbow, target first, got {names}")
         state_dim = sum(int(np.prod(s.shape)) for name, s in observation_spec.items() if name != "vision")
         scales: list[float] = []
+        if "cue" in names and [n for n in names if n != "vision"][-1] != "cue":
+            raise ValueError(f"the cue must be the last observation (the state's last entries), got {names}")
+        cue_dim = int(np.prod(observation_spec["cue"].shape)) if "cue" in names else 0
         for name, s in list(observation_spec.items())[3:]:
             if name == "vision":
                 continue
@@ -177,4 +201,4 @@ class Sizes:
             raise ValueError(f"the agent needs a 1-D action with one symmetric bound, got shape "
                              f"{action_spec.shape}, bounds [{action_spec.minimum}, {action_spec.maximum}]")
         return cls(state_dim=state_dim, action_dim=int(action_spec.shape[0]), action_bound=float(hi.flat[0]),
-                   angle_actions=action_spec.name == ANGLE_ACTIONS, extra_scale=tuple(scales))
+                   angle_actions=action_spec.name == ANGLE_ACTIONS, extra_scale=tuple(scales), cue_dim=cue_dim)

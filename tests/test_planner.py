@@ -21,6 +21,7 @@ from apac_mj.agent.agent import Agent
 from apac_mj.agent.arbitrators import VOC_EDGES, ValueOfComputationArbitrator
 from apac_mj.agent.planner import MPCPlanner
 from apac_mj.config import AgentConfig
+from apac_mj.kinematics import Sizes
 from apac_mj.rules import MPCParams
 from apac_mj.types import END, TARGET, ArbitrationContext, HabitProbe, StepInfo
 
@@ -35,6 +36,7 @@ class PointHand:
     def __init__(self, scale: float = 2.0, gamma: float = 0.99) -> None:
         self.cfg = dataclasses.replace(AgentConfig(), gamma=gamma)
         self.scale = scale
+        self.sizes = Sizes(state_dim=8, extra_scale=(1.0, 1.0))  # two extra entries (joint velocities), no cue
 
     def to_action(self, u: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
         return u * self.scale

@@ -57,11 +57,11 @@ def test_missing_keys_take_paper_defaults(tmp_path):
 
 def test_shipped_task_files():
     names = task_names()
-    assert len(names) == 19
+    assert len(names) == 20
     for name in names:
         spec = load_task(name)
         assert spec.link_lengths == (5.0, 8.0) and spec.steps_per_episode == 30 and spec.zone_radius == 0.5
-        assert spec.target_mode in name and spec.region.test_y_min == 22.3
+        assert (spec.target_mode in name or spec.cued) and spec.region.test_y_min == 22.3
         assert (spec.kinematics_mode == "changing") == ("changing_kinematics" in name)
         assert spec.occluded == name.endswith("occluded")
         assert (spec.target_region == "train") == name.endswith("train_region")

@@ -83,9 +83,11 @@ class Agent:
         S, A = self.state_dim, self.action_dim
         self.actor = build_actor(cfg.actor_hidden, init, S, A).to(self.device)
         self.critic = build_critic(cfg.critic_hidden, init, cfg.critic_form, S, A).to(self.device)
-        X = self.sizes.extra_dim
+        X = self.sizes.motion_dim
         #: Scale of each extra state entry (its observation spec's ``scale``, e.g. 500 deg/s): networks read extra / scale.
         self.extra_scale = torch.tensor(self.sizes.extra_scale, dtype=torch.float32, device=self.device)
+        #: The scales of the motion's extra entries (the internal models' extra inputs and outputs).
+        self.motion_scale = self.extra_scale[:X]
         self.forward_model = build_forward_model(cfg.forward_hidden, self.plane_scale, init, A, X).to(self.device)
         self.inverse_model = build_inverse_model(cfg.inverse_hidden, init, A, X).to(self.device)
         self.target_actor = _frozen_copy(self.actor)
@@ -135,7 +137,15 @@ class Agent:
     def _motion(self, x: torch.Tensor) -> list[torch.Tensor]:
         """The arm's motion as the internal models read it, from a network-input state ``x``: ``[arm]``, or
         ``[arm, extra]`` where the task observes more (the joint velocities: a Markov state under dynamics)."""
-        return [x[..., ARM], x[..., EXTRA]] if self.sizes.extra_dim else [x[..., ARM]]
+        return [x[..., ARM], x[..., self.sizes.motion]] if self.sizes.motion_dim else [x[..., ARM]]
+
+    def _habit(self, x: torch.Tensor) -> torch.Tensor:
+        """What the habit (actor and critic) reads of a network-input state ``x``: all of it, or on a cued task
+        (``Sizes.cue_dim``) the target's position zeroed: the habit learns cue -> movement; the planner alone is
+        told where the cued target is."""
+        if not self.sizes.cue_dim:
+            return x
+        return torch.cat([x[..., :TARGET.start], torch.zeros_like(x[..., TARGET]), x[..., TARGET.stop:]], -1)
 
     def _inverse_input(self, x: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
         """The inverse model's input: the motion (:meth:`_motion`) and the hand's goal ``[..., 2]`` (network
@@ -200,7 +210,7 @@ class Agent:
         """Habit proposal ``pi(s)``: state ``[E, 6 + extra] -> [E,2]`` degrees (no noise)."""
         s = self._check("state", state, self.state_dim)
         actor = self.target_actor if self.cfg.act_with_target_actor else self.actor
-        return self.to_action(actor(self._state(s)[:, None])[:, 0], s)
+        return self.to_action(actor(self._habit(self._state(s))[:, None])[:, 0], s)
 
     @torch.no_grad()
     def inverse_action(self, state: torch.Tensor) -> torch.Tensor:
@@ -234,8 +244,10 @@ class Agent:
                 torch.cat([*self._motion(x), self._act(action)], -1)), state)
         y = self.forward_model(torch.cat([*self._motion(x), self._act(action)], -1))
         parts = [y[..., ARM], state[..., TARGET]]
-        if self.sizes.extra_dim:
-            parts.append(self._forward_extra(y) * self.extra_scale)
+        if self.sizes.motion_dim:
+            parts.append(self._forward_extra(y) * self.motion_scale)
+        if self.sizes.cue_dim:  # the cue stays as it is
+            parts.append(state[..., self.sizes.cue])
         return torch.cat(parts, -1)
 
     def _motion_x(self, x: torch.Tensor) -> torch.Tensor:
@@ -249,21 +261,23 @@ class Agent:
             half = self.plane_scale / 2
             arm = arm * half + half
         parts = [arm, state[..., TARGET]]
-        if self.sizes.extra_dim:
+        if self.sizes.motion_dim:
             extra = m[..., MOTION_EXTRA]
-            parts.append(extra * self.extra_scale if self.cfg.normalize_inputs else extra)
+            parts.append(extra * self.motion_scale if self.cfg.normalize_inputs else extra)
+        if self.sizes.cue_dim:
+            parts.append(state[..., self.sizes.cue])
         return torch.cat(parts, -1)
 
     @torch.no_grad()
     def habit_u(self, state: torch.Tensor) -> torch.Tensor:
         """The actor's tanh output ``[E, B, 2]`` in ``state`` ``[E, B, 6 + extra]`` (:meth:`to_action` makes it
         an action)."""
-        return self.actor(self._state(state))
+        return self.actor(self._habit(self._state(state)))
 
     @torch.no_grad()
     def value(self, state: torch.Tensor) -> torch.Tensor:
         """The critic's ``Q(s, pi(s))`` ``[E, B]`` (cm of return) in ``state`` ``[E, B, 6 + extra]``."""
-        x = self._state(state)
+        x = self._habit(self._state(state))
         return self.critic(x, self._act(self.to_action(self.actor(x), state)))
 
     @torch.no_grad()
@@ -274,11 +288,11 @@ class Agent:
         a = self._check("a", a, self.action_dim)[:, None]
         r, done = self._check("r", torch.as_tensor(r)[:, None], 1), self._check("done", torch.as_tensor(done)[:, None], 1)
         y = self._target(r, s2, done)
-        return (y - self.critic(self._state(s), self._act(a)))[:, 0]
+        return (y - self.critic(self._habit(self._state(s)), self._act(a)))[:, 0]
 
     def _target(self, r: torch.Tensor, s2: torch.Tensor, done: torch.Tensor) -> torch.Tensor:
         """TD target ``r + gamma (1 - done) Q'(s2, pi'(s2))``; ``[E,B]`` (s2 raw cm)."""
-        x2 = self._state(s2)
+        x2 = self._habit(self._state(s2))
         with self._precision("actor"):
             a2 = self.to_action(self.target_actor(x2).float(), s2)
         with self._precision("critic"):
@@ -365,13 +379,14 @@ class Agent:
         with torch.no_grad():
             y = self._target(b["reward"], s2, b["done"])
         x = self._state(s)
+        h = self._habit(x)  # the habit's view (on a cued task: the cue, not the target's position)
         with self._precision("critic"):
-            q = self.critic(x, self._act(a)).float()
+            q = self.critic(h, self._act(a)).float()
         with self._precision("actor"):
-            u = self.actor(x).float()
+            u = self.actor(h).float()
         pi = self.to_action(u, s)
         with self._precision("critic"):
-            actor_loss = -self.critic(x, self._act(pi), detach=True).float().mean(1)
+            actor_loss = -self.critic(h, self._act(pi), detach=True).float().mean(1)
         if cfg.habit_distillation_weight > 0:  # kinds that arbitrate only (apac_mj.kinds.check)
             with torch.no_grad(), self._precision("inverse_model"):
                 plan = self.to_action(self.inverse_model(self._plan_input(x)).float(), s)
@@ -397,10 +412,10 @@ class Agent:
         by its scale and weighed as half the plane's width (cm), so an error of one scale (500 deg/s) counts
         as much as half the plane."""
         err = y[..., ARM] - s2[..., ARM]
-        if not self.sizes.extra_dim:
+        if not self.sizes.motion_dim:
             return err
         half = self.plane_scale / 2
-        return torch.cat([err, (self._forward_extra(y) - s2[..., EXTRA] / self.extra_scale) * half], -1)
+        return torch.cat([err, (self._forward_extra(y) - s2[..., self.sizes.motion] / self.motion_scale) * half], -1)
 
     @torch.no_grad()
     def _soft_update(self, members: list[int]) -> None:

@@ -26,7 +26,7 @@ import numpy as np
 import torch
 
 from apac_mj.rules import MPCParams
-from apac_mj.types import END, EXTRA, TARGET, ArbitrationContext, HabitProbe, Planner, Policy, Proposal
+from apac_mj.types import END, TARGET, ArbitrationContext, HabitProbe, Planner, Policy, Proposal
 
 #: The spawn key of the planner's random streams (independent of the agent's init, replay and noise streams).
 STREAM = 28
@@ -93,15 +93,17 @@ class MPCPlanner(Planner):
             s = agent.imagine(s, agent.executable(agent.to_action(u_t, s), s))
             distance = torch.linalg.vector_norm(s[..., END] - s[..., TARGET], dim=-1)
             value = value - gamma ** t * alive * distance
-            alive = alive * (1.0 - self._arrived(s, distance))
+            alive = alive * (1.0 - self._arrived(s, distance, agent.sizes.motion))
             hands.append(s[..., END])
         value = value + gamma ** H * alive * agent.value(s)
         return value, torch.stack(hands, 2), torch.stack(taken, 2)
 
-    def _arrived(self, s: torch.Tensor, distance: torch.Tensor) -> torch.Tensor:
+    def _arrived(self, s: torch.Tensor, distance: torch.Tensor, motion: slice) -> torch.Tensor:
+        """Where the imagined hand arrived: in the zone and (a stop criterion) every joint speed, the state's
+        ``motion`` entries (``Sizes.motion``), at most ``stop_speed``."""
         arrived = distance <= self.zone_radius
         if self.stop_speed is not None:
-            arrived = arrived & (s[..., EXTRA].abs().amax(-1) <= self.stop_speed)
+            arrived = arrived & (s[..., motion].abs().amax(-1) <= self.stop_speed)
         return arrived.float()
 
     def _habit(self, agent: Any, state: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:

@@ -362,8 +362,37 @@ class Reach(base.Task):
         #: This step's view: seen or not, and the noise on the 6 seen coordinates (None: none).
         self._seen = True
         self._noise: np.ndarray | None = None
+        #: A cued task's cue this episode (-1: none yet, or not a cued task).
+        self.cue = -1
+        self._cue_override: int | None = None
+        self._mapping_override: bool | None = None
 
     # -- run-time controls ----------------------------------------------------
+    def set_cue_override(self, cue: int | None) -> None:
+        """Show cue ``cue`` in the following episodes (None: draw one each episode); a cued task only."""
+        cues = self._cues("a cue override")
+        if cue is not None and (isinstance(cue, bool) or not isinstance(cue, (int, np.integer)) or not 0 <= cue < cues.n):
+            raise ValueError(f"cue must be an integer in 0..{cues.n - 1}, got {cue!r}")
+        self._cue_override = None if cue is None else int(cue)
+
+    def set_mapping_override(self, remapped: bool | None) -> None:
+        """Use the original (False) or the swapped (True) cue mapping in the following episodes (None: the task's
+        schedule, ``[cues] remap_episode``); a cued task only."""
+        self._cues("a mapping override")
+        self._mapping_override = None if remapped is None else bool(remapped)
+
+    def _cues(self, what: str):
+        if self.spec.cues is None:
+            raise ValueError(f"{what} needs a cued task ([cues] in the task file); task {self.spec.name!r} has none")
+        return self.spec.cues
+
+    def remapped(self) -> bool:
+        """The swapped cue mapping is in force this episode (False for tasks without cues)."""
+        if self.spec.cues is None:
+            return False
+        if self._mapping_override is not None:
+            return self._mapping_override
+        return self.spec.cues.remapped_at(self.episode)
     def set_target_override(self, xy) -> None:
         """Use ``xy`` as the target of the following episodes (None: sample again).
 
@@ -421,6 +450,8 @@ class Reach(base.Task):
         self._noise = self.random.normal(0.0, std, size=6) if self._seen and std > 0 else None
 
     def _episode_target(self) -> np.ndarray:
+        if self.spec.cues is not None:
+            return self._cued_target()
         if self._target_override is not None:
             return self._target_override
         if self.spec.target_mode == "static":
@@ -428,6 +459,12 @@ class Reach(base.Task):
                 self._static_target = self.sample_target()
             return self._static_target
         return self.sample_target()
+
+    def _cued_target(self) -> np.ndarray:
+        """This episode's cue (the override, else one drawn uniformly) and its target under the mapping in force."""
+        cues = self.spec.cues
+        self.cue = self._cue_override if self._cue_override is not None else int(self.random.randint(cues.n))
+        return cues.mapping(self.remapped())[self.cue]
 
     def sample_target(self, max_tries: int = 10_000) -> np.ndarray:
         """A reachable target: uniform joint angles through the motion function."""
@@ -487,6 +524,8 @@ class Reach(base.Task):
         if "joint_velocities" in spec:
             spec["joint_velocities"] = ScaledArray(spec["joint_velocities"].shape, np.float64,
                                                    self.spec.plant.velocity_scale, name="joint_velocities")
+        if "cue" in spec:  # one-hot: read as it is
+            spec["cue"] = ScaledArray(spec["cue"].shape, np.float64, 1.0, name="cue")
         return spec
 
     def get_observation(self, physics: Physics) -> collections.OrderedDict:
@@ -501,6 +540,8 @@ class Reach(base.Task):
         obs["vision"] = np.array([1.0 if seen else 0.0])
         if self.spec.plant.observe_velocities:  # proprioception: felt whether the arm is seen or not
             obs["joint_velocities"] = physics.joint_velocities()
+        if self.spec.cues is not None:  # the stimulus stays on the screen for the whole episode, seen or not
+            obs["cue"] = np.eye(self.spec.cues.n)[self.cue] if self.cue >= 0 else np.zeros(self.spec.cues.n)
         return obs
 
     def get_reward(self, physics: Physics) -> float:
@@ -532,6 +573,7 @@ class Reach(base.Task):
             "random": self.random.get_state(),
             "seen": self._seen,
             "noise": None if self._noise is None else self._noise.copy(),
+            "cue": self.cue, "cue_override": self._cue_override, "mapping_override": self._mapping_override,
         }
 
     def set_state(self, state: dict) -> None:
@@ -544,6 +586,8 @@ class Reach(base.Task):
         self._seen = bool(state.get("seen", True))
         noise = state.get("noise")
         self._noise = None if noise is None else np.asarray(noise, dtype=np.float64).reshape(6).copy()
+        self.cue = int(state.get("cue", -1))
+        self._cue_override, self._mapping_override = state.get("cue_override"), state.get("mapping_override")
 
 
 def stopped(physics: Physics, stop_speed: float) -> bool:

@@ -56,6 +56,49 @@ class Region:
         return np.asarray(xy)[..., 1] >= self.test_y_min
 
 
+#: At most this many cues a cued task may state (``[cues] targets``).
+MAX_CUES = 16
+
+
+@dataclasses.dataclass(frozen=True)
+class Cues:
+    """A cued-target task's stimulus-to-target mapping (file table ``[cues]``): each episode shows one cue (a
+    symbol: the observation ``cue``, one-hot) drawn uniformly, and the target is that cue's under the mapping in
+    force. The habit (actor and critic) reads the cue, not the target's position; the planner is told the target
+    (the mapping in force), as participants in a remapping experiment are told the new mapping (docs/forced_response.md).
+    """
+
+    #: File key ``[cues] targets``: each cue's target (cm, on the plane, reachable from the start pose), in cue order.
+    targets: tuple[tuple[float, float], ...] = ()
+    #: File key ``[cues] swap``: pairs of cues whose targets change places at the remap (e.g. ``[[1, 2]]``).
+    swap: tuple[tuple[int, int], ...] = ()
+    #: File key ``[cues] remap_episode``: the training episode from which the swapped mapping is in force
+    #: (None, no key: never during training; the forced-response test remaps after practice).
+    remap_episode: int | None = None
+
+    @property
+    def n(self) -> int:
+        """How many cues."""
+        return len(self.targets)
+
+    @property
+    def remapped(self) -> tuple[int, ...]:
+        """The cues the remap changes, ascending."""
+        return tuple(sorted({c for pair in self.swap for c in pair}))
+
+    def mapping(self, remapped: bool) -> np.ndarray:
+        """``[n, 2]`` each cue's target: the original mapping, or (``remapped``) with the ``swap`` pairs exchanged."""
+        t = np.array(self.targets, dtype=np.float64)
+        if remapped:
+            for a, b in self.swap:
+                t[[a, b]] = t[[b, a]]
+        return t
+
+    def remapped_at(self, episode: int) -> bool:
+        """The swapped mapping is in force at training episode ``episode``."""
+        return self.remap_episode is not None and episode >= self.remap_episode
+
+
 @dataclasses.dataclass(frozen=True)
 class TaskSpec:
     """One experimental condition. Field docs double as the file format's docs."""
@@ -121,6 +164,9 @@ class TaskSpec:
     report_color: str = ""
     #: File table ``[plant]``: the arm's dynamics (:class:`PlantSpec`; default: the paper's ideal arm).
     plant: PlantSpec = dataclasses.field(default_factory=PlantSpec)
+    #: File table ``[cues]``: a cued-target task (:class:`Cues`: the target is a shown cue's, under a mapping
+    #: that a remap may change); None: the target itself is shown (every other task).
+    cues: Cues | None = None
 
     def __post_init__(self) -> None:
         _check_choice(self, "target_mode", ("static", "changing"))
@@ -156,6 +202,13 @@ class TaskSpec:
         if not (0 <= ox <= self.plane_size[0] and 0 <= oy <= self.plane_size[1]):
             raise TaskSpecError(f"task {self.name!r}: origin {self.origin} lies outside the plane {self.plane_size}")
         check_task_plant(self.name, self.plant)
+        if self.cues is not None:
+            _check_cues(self)
+
+    @property
+    def cued(self) -> bool:
+        """The observation shows a cue, not the target (:attr:`cues`)."""
+        return self.cues is not None
 
     @property
     def occluded(self) -> bool:
@@ -184,6 +237,58 @@ def describe(spec: TaskSpec) -> str:
     return "\n".join([*(f"{'*' if getattr(spec, f.name) != getattr(default, f.name) else ' '} {f.name} = "
                        f"{getattr(spec, f.name)!r}" for f in dataclasses.fields(spec) if f.name not in ("name", "plant")),
                       describe_plant(spec.plant)])
+
+
+def _check_cues(spec: TaskSpec) -> None:
+    """A cued task: 2 to MAX_CUES distinct reachable targets on the plane, swap pairs of distinct cues (each
+    cue in one pair at most), a remap episode >= 0; cues draw the target, so the target mode is "changing"."""
+    cues, where = spec.cues, f"task {spec.name!r}: [cues]"
+    if not 2 <= cues.n <= MAX_CUES:
+        raise TaskSpecError(f"{where} targets must list 2 to {MAX_CUES} targets, got {cues.n}")
+    if spec.target_mode != "changing" or spec.target_region != "all":
+        raise TaskSpecError(f"{where}: a cued task draws each episode's target from its cues: [target] mode must be "
+                            f"'changing' and region 'all', got {spec.target_mode!r}, {spec.target_region!r}")
+    w, h = spec.plane_size
+    l1, l2 = spec.link_lengths
+    ox, oy = spec.origin
+    for k, (x, y) in enumerate(cues.targets):
+        if not (0 <= x <= w and 0 <= y <= h):
+            raise TaskSpecError(f"{where} target {k} {[x, y]} lies outside the {w} x {h} plane")
+        if joint_angles_for(x - ox, y - oy, l1, l2, spec.joint_range) is None:
+            raise TaskSpecError(f"{where} target {k} {[x, y]} is out of the arm's reach (links {l1}, {l2} cm from "
+                                f"the shoulder {list(spec.origin)}, both joints in {list(spec.joint_range)} degrees)")
+    t = np.array(cues.targets)
+    gaps = np.linalg.norm(t[:, None] - t[None], axis=-1)[np.triu_indices(cues.n, 1)]
+    if gaps.min() <= 2 * spec.zone_radius:
+        raise TaskSpecError(f"{where} targets must lie more than two zone radii ({2 * spec.zone_radius:g} cm) apart, "
+                            f"got two {gaps.min():.2f} cm apart")
+    seen: set[int] = set()
+    for pair in cues.swap:
+        if len(pair) != 2 or pair[0] == pair[1] or not all(0 <= c < cues.n for c in pair):
+            raise TaskSpecError(f"{where} swap pairs must name two different cues in 0..{cues.n - 1}, got {list(pair)}")
+        if seen & set(pair):
+            raise TaskSpecError(f"{where} swap: each cue may be in one pair at most, got {[list(p) for p in cues.swap]}")
+        seen |= set(pair)
+    if cues.remap_episode is not None and cues.remap_episode < 0:
+        raise TaskSpecError(f"{where} remap_episode must be an integer >= 0, got {cues.remap_episode}")
+
+
+def joint_angles_for(dx: float, dy: float, l1: float, l2: float,
+                     joint_range: tuple[float, float]) -> tuple[float, float] | None:
+    """(shoulder, elbow) angles in degrees inside ``joint_range`` that put the hand at ``(dx, dy)`` from the
+    shoulder (the motion function inverted: hand = l1 (cos a, sin a) + l2 (cos(a + b), sin(a + b))); None: none."""
+    c = (dx * dx + dy * dy - l1 * l1 - l2 * l2) / (2 * l1 * l2)
+    if not -1 <= c <= 1:
+        return None
+    lo, hi = joint_range
+    for beta in (math.acos(c), -math.acos(c)):
+        alpha = math.atan2(dy, dx) - math.atan2(l2 * math.sin(beta), l1 + l2 * math.cos(beta))
+        a, b = math.degrees(alpha), math.degrees(beta)
+        for turns_a in (-360, 0, 360):
+            for turns_b in (-360, 0, 360):
+                if lo <= a + turns_a <= hi and lo <= b + turns_b <= hi:
+                    return a + turns_a, b + turns_b
+    return None
 
 
 def _check_choice(spec: TaskSpec, field: str, choices: tuple[str, ...]) -> None:
@@ -282,9 +387,12 @@ def parse_task(data: dict[str, Any], name: str, source: str = "<dict>") -> TaskS
     """Validate a parsed TOML document and build the :class:`TaskSpec`."""
     kwargs: dict[str, Any] = {}
     for key, value in data.items():
-        if isinstance(value, dict) and key != "plant":
+        if key == "cues":
+            kwargs["cues"] = parse_cues(value, source)
+        elif isinstance(value, dict) and key != "plant":
             if key not in _LAYOUT or key == "":
-                raise TaskSpecError(f"{source}: unknown section [{key}]; known: {sorted([*(k for k in _LAYOUT if k), 'plant'])}")
+                raise TaskSpecError(f"{source}: unknown section [{key}]; known: "
+                                f"{sorted([*(k for k in _LAYOUT if k), 'plant', 'cues'])}")
             for sub, sub_value in value.items():
                 if sub not in _LAYOUT[key]:
                     raise TaskSpecError(f"{source}: unknown key {key}.{sub}; known in [{key}]: {sorted(_LAYOUT[key])}")
@@ -301,9 +409,40 @@ def parse_task(data: dict[str, Any], name: str, source: str = "<dict>") -> TaskS
         raise TaskSpecError(f"{source}: {e}") from None
 
 
+_CUE_KEYS = ("targets", "swap", "remap_episode")
+
+
+def parse_cues(table: Any, source: str) -> Cues:
+    """The ``[cues]`` table as :class:`Cues` (its keys checked; the spec checks the rest against the arm)."""
+    where = f"{source}: [cues]"
+    if isinstance(table, Cues):
+        return table
+    if not isinstance(table, dict):
+        raise TaskSpecError(f"{where} must be a table with keys {list(_CUE_KEYS)}, got {table!r}")
+    unknown = sorted(set(table) - set(_CUE_KEYS))
+    if unknown:
+        raise TaskSpecError(f"{where}: unknown key(s) {unknown}; known: {list(_CUE_KEYS)}")
+    if "targets" not in table:
+        raise TaskSpecError(f"{where} needs targets = [[x, y], ...] (cm), one per cue")
+    targets = table["targets"]
+    if not isinstance(targets, (list, tuple)):
+        raise TaskSpecError(f"{where} targets must be a list of [x, y] pairs (cm), got {targets!r}")
+    pairs = tuple(_coerce("origin", t, f"{where} targets[{k}]") for k, t in enumerate(targets))
+    swap = table.get("swap", [])
+    if not isinstance(swap, (list, tuple)) or not all(
+            isinstance(p, (list, tuple)) and all(isinstance(c, int) and not isinstance(c, bool) for c in p) for p in swap):
+        raise TaskSpecError(f"{where} swap must be a list of [cue, cue] integer pairs, got {swap!r}")
+    remap = table.get("remap_episode")
+    if remap is not None and (not isinstance(remap, int) or isinstance(remap, bool)):
+        raise TaskSpecError(f"{where} remap_episode must be an integer, got {remap!r}")
+    return Cues(targets=pairs, swap=tuple(tuple(p) for p in swap), remap_episode=remap)
+
+
 def _coerce(field: str, value: Any, where: str) -> Any:
     if field == "region":
         return Region(test_y_min=finite_number(value, where))
+    if field == "cues":
+        return None if value is None else parse_cues(value, where)
     if field in _PAIRS:
         if not isinstance(value, (list, tuple)) or len(value) != 2:
             raise TaskSpecError(f"{where} must be a list of two numbers, got {value!r}")

@@ -54,7 +54,10 @@ class VecEnv:
         spec = spec.replace(**overrides) if overrides else spec
         if episode_offset:  # the environment counts every reset: its schedule moves by the offset, here only
             spec = spec.replace(growth_start_episode=spec.growth_start_episode + episode_offset,
-                                **({"plant": spec.plant.shifted(episode_offset)} if spec.plant.dynamic else {}))
+                                **({"plant": spec.plant.shifted(episode_offset)} if spec.plant.dynamic else {}),
+                                **({"cues": dataclasses.replace(spec.cues, remap_episode=spec.cues.remap_episode
+                                                                + episode_offset)}
+                                   if spec.cued and spec.cues.remap_episode is not None else {}))
         self.seeds, self.actuation, self.episode_offset = seeds, actuation, episode_offset
         self.envs = [planar_arm.make_environment(spec, actuation=actuation, random=s) for s in seeds]
         self.E = len(seeds)
@@ -129,6 +132,21 @@ class VecEnv:
         for k in np.flatnonzero(self._mask(mask)):
             self.envs[k].task.set_target_override(None if targets is None else targets[k])
 
+    def set_cue_override(self, cues: Sequence[int] | np.ndarray | None, mask: Sequence[bool] | np.ndarray | None = None) -> None:
+        """Cues ``[E]`` shown in the next episodes of the members in ``mask`` (None: drawn again); a cued task."""
+        for k in np.flatnonzero(self._mask(mask)):
+            self.envs[k].task.set_cue_override(None if cues is None else int(cues[k]))
+
+    def set_mapping_override(self, remapped: bool | None) -> None:
+        """Every member's cue mapping from its next episode: original (False), swapped (True), or the task's
+        schedule (None)."""
+        for env in self.envs:
+            env.task.set_mapping_override(remapped)
+
+    def cues(self) -> np.ndarray:
+        """``[E]`` each member's cue this episode (-1: not a cued task)."""
+        return np.array([env.task.cue for env in self.envs])
+
     def set_link_lengths(self, lengths: np.ndarray) -> None:
         """Link lengths ``[E, 2]`` used from each member's next reset on."""
         for k in range(self.E):
@@ -192,7 +210,8 @@ def _member_state(env) -> dict[str, Any]:
                  "target_override": None if task._target_override is None
                  else torch.from_numpy(task._target_override.copy()),
                  "step_count": int(task.step_count), "seen": bool(ts["seen"]),
-                 "noise": None if ts["noise"] is None else torch.from_numpy(ts["noise"].copy())},
+                 "noise": None if ts["noise"] is None else torch.from_numpy(ts["noise"].copy()),
+                 "cue": int(ts["cue"]), "cue_override": ts["cue_override"], "mapping_override": ts["mapping_override"]},
         **_environment_counters(env),
     }
 
@@ -204,7 +223,9 @@ def _set_member_state(env, s: dict[str, Any]) -> None:
                     "static_target": None if t["static_target"] is None else t["static_target"].numpy(),
                     "random": (kind, keys.numpy().astype(np.uint32), pos, has_gauss, gauss),
                     "seen": t.get("seen", True),
-                    "noise": None if t.get("noise") is None else t["noise"].numpy()})
+                    "noise": None if t.get("noise") is None else t["noise"].numpy(),
+                    "cue": t.get("cue", -1), "cue_override": t.get("cue_override"),
+                    "mapping_override": t.get("mapping_override")})
     task.set_target_override(None if t["target_override"] is None else t["target_override"].numpy())
     task.step_count = int(t["step_count"])
     p.plane_size = task.spec.plane_size
