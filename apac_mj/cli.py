@@ -25,6 +25,7 @@ COMMAND_MODULES = [
     "apac_mj.commands.evaluate",
     "apac_mj.commands.record",
     "apac_mj.commands.screenshot",
+    "apac_mj.commands.forced_response",
 ]
 
 

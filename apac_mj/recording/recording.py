@@ -754,6 +754,8 @@ class EpisodeRecorder(Hook):
         self._renderer: Renderer | None = None
         self._start: tuple[StepRecord, np.ndarray] | None = None
         self._recording_episode = False
+        #: A line logged as an event at each recorded episode's start (e.g. a forced-response trial's timing).
+        self.note = ""
 
     # -- hooks ----------------------------------------------------------------------------------
     def on_episode_start(self, members: np.ndarray, vec_env: VecEnv) -> None:
@@ -820,6 +822,8 @@ class EpisodeRecorder(Hook):
             self.files.append(path)
         note = "(vision occluded after the first step)" if vec_env.spec.occluded else ""
         self._recording.start_episode(episode, start.target, start.link_lengths, note=note)
+        if self.note:
+            self._recording.event(episode, 0, self.note)
         self._log(start, frame)
 
     def _log(self, rec: StepRecord, frame: np.ndarray) -> None:

@@ -92,6 +92,9 @@ def _evaluate(run: RunDir, protocols: Sequence[str], region: str | None, device:
     """:func:`evaluate` as the run's one writer."""
     cfg = run.train_config()
     spec = spec_for(cfg)  # the task, read once for every protocol
+    if spec.cued:
+        raise ValueError(f"task {cfg.task!r} is a cued task: its targets are its cues', not the angle grid's; test it "
+                         f"with apac-mj forced-response test {run.path} --out FILE.parquet (docs/forced_response.md)")
     kind = get_kind(cfg.agent.kind)
     tested = [p for p in protocols if p != "occluded" or kind.acts_occluded]
     first = None if not tested else eval_env(cfg, spec, None, tested[0] == "occluded")

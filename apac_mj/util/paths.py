@@ -32,3 +32,8 @@ def tasks_dir() -> Path:
 
 def arm_xml_path() -> Path:
     return assets_dir() / "planar_arm.xml"
+
+
+def repo_root() -> Path:
+    """The source checkout's top folder (docs/ lives there; an installed wheel has no docs/)."""
+    return _REPO

@@ -1,0 +1,182 @@
+"""The forced-response study's report: curves over seeds, the peak table, the figure beside the human curves.
+
+Input: the tests' tables (:data:`apac_mj.run.forced_response.COLUMNS`), one per practice length and kind,
+``tests/p<episodes>/<kind>.parquet`` under a study directory (:mod:`apac_mj.experiments.forced_response`).
+Per seed, cues of one type (remapped, unchanged) are pooled; intervals are 95% bootstrap intervals over seeds.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import pandas as pd
+
+#: How the report names each tested variant.
+LABELS = {"ddpg": "DDPG (habit only)", "spac": "SPAC (planning only)", "apac": "APAC, paper's delta rule",
+          "apac_imagined": "APAC, delta of the imagined transition", "apac_voc": "APAC-VOC (graded)"}
+#: Preparation times that count as short and long in the peak table (ms).
+SHORT_MS, LONG_MS = 150.0, 900.0
+_RATES = ("correct", "habitual", "other", "timeout", "error")
+
+
+def load_tests(study: str | Path) -> pd.DataFrame:
+    """Every test table of a study, with its practice length (``practice`` column)."""
+    frames = []
+    for path in sorted(Path(study, "tests").glob("p*/*.parquet")):
+        df = pd.read_parquet(path)
+        df["practice"] = int(path.parent.name[1:])
+        frames.append(df)
+    if not frames:
+        raise FileNotFoundError(f"{study}: no tests/p<episodes>/<kind>.parquet (run apac-mj forced-response run)")
+    return pd.concat(frames, ignore_index=True)
+
+
+def per_seed(tests: pd.DataFrame) -> pd.DataFrame:
+    """Rates per practice, variant, seed, cue type and preparation time (cues of the type pooled):
+    P(correct), P(habitual error), P(other error), P(time-out), P(error) = habitual + other, and who acted."""
+    keys = ["practice", "variant", "seed", "remapped", "prep_ms"]
+    counts = tests.groupby(keys)[["trials", "correct", "habitual", "other", "timeout", "habit_acted",
+                                  "planner_acted", "default_acted"]].sum().reset_index()
+    n = counts["trials"]
+    for name in ("correct", "habitual", "other", "timeout", "habit_acted", "planner_acted", "default_acted"):
+        counts[f"p_{name}"] = counts[name] / n
+    counts["p_error"] = counts["p_habitual"] + counts["p_other"]
+    return counts
+
+
+def bootstrap(values: np.ndarray, resamples: int = 2000, seed: int = 0) -> tuple[float, float, float]:
+    """Mean and 95% bootstrap interval of ``values`` (one per seed)."""
+    v = np.asarray(values, dtype=float)
+    rng = np.random.default_rng(seed)
+    means = v[rng.integers(0, len(v), (resamples, len(v)))].mean(1)
+    return float(v.mean()), float(np.quantile(means, 0.025)), float(np.quantile(means, 0.975))
+
+
+def curves(seeds: pd.DataFrame) -> pd.DataFrame:
+    """Mean and interval over seeds of every rate, per practice, variant, cue type and preparation time."""
+    rows = []
+    for key, g in seeds.groupby(["practice", "variant", "remapped", "prep_ms"]):
+        row = dict(zip(["practice", "variant", "remapped", "prep_ms"], key), seeds=len(g))
+        for r in (*_RATES, "habit_acted", "planner_acted"):
+            row[r], row[f"{r}_lo"], row[f"{r}_hi"] = bootstrap(g[f"p_{r}"].to_numpy())
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def peaks(seeds: pd.DataFrame) -> pd.DataFrame:
+    """Per practice and variant: where the mean P(habitual error) of the remapped cues peaks, its height and
+    interval there, beside its level at short (<= SHORT_MS) and long (>= LONG_MS) preparation times; the
+    unchanged cues' largest P(error); whether the peak's interval lies above both ends' intervals; when each
+    stimulus's P(correct) reaches 0.5 (:func:`t50`)."""
+    rows = []
+    for (practice, variant), g in seeds.groupby(["practice", "variant"]):
+        rem, unc = g[g.remapped], g[~g.remapped]
+        mean = rem.groupby("prep_ms")["p_habitual"].mean()
+        at = float(mean.idxmax())
+        peak = bootstrap(rem[rem.prep_ms == at]["p_habitual"].to_numpy())
+        short = bootstrap(rem[rem.prep_ms <= SHORT_MS].groupby("seed")["p_habitual"].mean().to_numpy())
+        long = bootstrap(rem[rem.prep_ms >= LONG_MS].groupby("seed")["p_habitual"].mean().to_numpy())
+        unc_mean = unc.groupby("prep_ms")["p_error"].mean()
+        unc_at = float(unc_mean.idxmax())
+        unc_peak = bootstrap(unc[unc.prep_ms == unc_at]["p_error"].to_numpy())
+        correct_long = bootstrap(rem[rem.prep_ms >= LONG_MS].groupby("seed")["p_correct"].mean().to_numpy())
+        rows.append({"practice": practice, "variant": variant, "seeds": rem.seed.nunique(), "peak_ms": at,
+                     "peak": peak[0], "peak_lo": peak[1], "peak_hi": peak[2],
+                     "short": short[0], "short_lo": short[1], "short_hi": short[2],
+                     "long": long[0], "long_lo": long[1], "long_hi": long[2],
+                     "separated": bool(peak[1] > max(short[2], long[2])),
+                     "unchanged_error_peak_ms": unc_at, "unchanged_error_peak": unc_peak[0],
+                     "unchanged_error_peak_hi": unc_peak[2],
+                     "remapped_correct_long": correct_long[0],
+                     "t50_correct_remapped_ms": t50(rem.groupby("prep_ms")["p_correct"].mean()),
+                     "t50_correct_unchanged_ms": t50(unc.groupby("prep_ms")["p_correct"].mean())})
+    return pd.DataFrame(rows)
+
+
+def t50(p_correct: pd.Series) -> float:
+    """The preparation time (ms; linear between tested times) where the mean P(correct), indexed by time,
+    first reaches 0.5 (the human summary's ``t50_correct_*``); NaN if it never does."""
+    p = p_correct.sort_index()
+    t, v = p.index.to_numpy(dtype=float), p.to_numpy(dtype=float)
+    above = np.flatnonzero(v >= 0.5)
+    if above.size == 0:
+        return float("nan")
+    i = int(above[0])
+    if i == 0:
+        return float(t[0])
+    return float(t[i - 1] + (0.5 - v[i - 1]) / (v[i] - v[i - 1]) * (t[i] - t[i - 1]))
+
+
+def figure(curve: pd.DataFrame, out: str | Path, human: pd.DataFrame | None = None,
+           variants: Sequence[str] | None = None) -> Path:
+    """Rows: the variants; columns: remapped and unchanged cues; P(correct) and P(habitual error) (unchanged:
+    P(error)) against preparation time, each practice length a shade, the human curves (4-day, 20-day) in grey."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    variants = list(variants or [v for v in LABELS if v in set(curve.variant)])
+    practices = sorted(curve.practice.unique())
+    fig, axes = plt.subplots(len(variants), 2, figsize=(10, 2.3 * len(variants)), sharex=True, sharey=True,
+                             squeeze=False)
+    shades = np.linspace(0.45, 1.0, len(practices))
+    for i, v in enumerate(variants):
+        for j, remapped in enumerate((True, False)):
+            ax = axes[i, j]
+            _human(ax, human, remapped)
+            for p, shade in zip(practices, shades):
+                g = curve[(curve.variant == v) & (curve.remapped == remapped) & (curve.practice == p)]
+                g = g.sort_values("prep_ms")
+                for rate, color in (("correct", "tab:green"), ("habitual" if remapped else "error", "tab:red")):
+                    ax.plot(g.prep_ms, g[rate], color=color, alpha=shade, lw=1.6,
+                            label=f"{'P(correct)' if rate == 'correct' else 'P(habitual error)' if remapped else 'P(error)'}"
+                                  f", {p} episodes")
+                    ax.fill_between(g.prep_ms, g[f"{rate}_lo"], g[f"{rate}_hi"], color=color, alpha=0.15 * shade)
+                ax.plot(g.prep_ms, g["timeout"], color="0.3", ls=":", alpha=shade, lw=1)
+            ax.set_title(f"{LABELS.get(v, v)}: {'remapped' if remapped else 'unchanged'} cues", fontsize=9)
+            ax.set_ylim(-0.02, 1.02)
+            ax.grid(alpha=0.3)
+    for ax in axes[-1]:
+        ax.set_xlabel("preparation time (ms)")
+    axes[0, 0].legend(fontsize=6, loc="center right")
+    fig.suptitle("Forced response after the remap. Model: colours, 95% bootstrap over seeds, dotted: time-outs.\n"
+                 "Humans (Hardwick et al. 2019): grey, 4-day dashed, 20-day solid; light: P(correct), dark: "
+                 "P(habitual error) / P(error)", fontsize=9)
+    fig.tight_layout()
+    path = Path(out)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def _human(ax, human: pd.DataFrame | None, remapped: bool) -> None:
+    """The human curves (P(correct), P(habitual error) or P(error)) of the 4-day and 20-day groups, in grey."""
+    if human is None:
+        return
+    stim = "remapped" if remapped else "unchanged"
+    for condition, ls in (("4day", "--"), ("20day", "-")):
+        g = human[(human.condition == condition) & (human.stimulus == stim)].sort_values("prep_ms")
+        if g.empty:
+            continue
+        ax.plot(g.prep_ms, g.p_correct, color="0.55", ls=ls, lw=1)
+        wrong = g.p_habitual if remapped else 1 - g.p_correct
+        ax.plot(g.prep_ms, wrong, color="0.35", ls=ls, lw=1)
+
+
+def write_report(study: str | Path, human: str | Path | None = None) -> Path:
+    """The report of a study's tests: ``curves.csv``, ``peaks.csv``, ``forced_response.png`` under
+    ``study/report``; ``human``: the human curves' CSV (default: the published one, if present)."""
+    import pandas as pd
+
+    from apac_mj.util import paths
+
+    out = Path(study) / "report"
+    out.mkdir(parents=True, exist_ok=True)
+    seeds = per_seed(load_tests(study))
+    curve, peak = curves(seeds), peaks(seeds)
+    curve.round(4).to_csv(out / "curves.csv", index=False)
+    peak.round(4).to_csv(out / "peaks.csv", index=False)
+    human = Path(human) if human else paths.repo_root() / "docs/results/forced_response/human/human_curves.csv"
+    figure(curve, out / "forced_response.png", pd.read_csv(human) if human.is_file() else None)
+    return out

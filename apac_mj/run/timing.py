@@ -1,0 +1,55 @@
+"""Time in a forced-response decision (:mod:`apac_mj.run.forced_response`), torch-free so that the command
+line can list its fields without loading torch."""
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Sequence
+
+import numpy as np
+
+
+@dataclasses.dataclass(frozen=True)
+class Timing:
+    """Time in a decision, simulated (ms from the cue). Calibrated so that the model's time axis can be laid
+    on the human curves (docs/forced_response.md, "Calibration"): the habit's latency puts the unchanged cues'
+    rise of P(correct) where the 4-day group's is, the planner's where the remapped cues' rise is."""
+
+    #: Mean time from the cue until the habit's proposal (the actor's pass) is ready.
+    habit_latency_ms: float = 300.0
+    #: Mean time from the cue until the planner starts its first iteration (reading the cue, told the mapping).
+    planning_latency_ms: float = 300.0
+    #: Trial-to-trial standard deviation of both latencies (Gaussian, cut at 0): the spread of the human curves.
+    latency_sd_ms: float = 60.0
+    #: Duration of the paper's planner's one iteration (the inverse model's query, with what it needs).
+    inverse_pass_ms: float = 200.0
+    #: Duration of one iteration of the planner through the learned model (MPPI; ``agent.mpc.iterations`` of
+    #: them, default 4: 200 ms in all, as the inverse model's one).
+    mpc_iteration_ms: float = 50.0
+    #: Duration of one forward-model pass (the imagined transition's delta; the graded rule's probe is
+    #: ``horizon`` of them).
+    model_pass_ms: float = 25.0
+    #: The shortest deadline allowed: one control step of the arm's decision clock. A deadline shorter than a
+    #: step leaves the arm no step to launch a movement in.
+    step_ms: float = 50.0
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
+                raise ValueError(f"timing: {f.name} must be a finite number of ms >= 0, got {v!r}")
+        for name in ("inverse_pass_ms", "mpc_iteration_ms", "step_ms"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"timing: {name} must be > 0 ms, got {getattr(self, name)!r}")
+
+    def check_deadlines(self, prep_times_ms: Sequence[float]) -> np.ndarray:
+        """The preparation times as an array, each finite and at least one step (:attr:`step_ms`)."""
+        t = np.asarray(prep_times_ms, dtype=np.float64).ravel()
+        if t.size == 0:
+            raise ValueError("prep_times_ms: give at least one preparation time (ms)")
+        bad = [float(v) for v in t if not math.isfinite(v) or v < self.step_ms]
+        if bad:
+            raise ValueError(f"prep_times_ms: every deadline must be a finite number of ms >= one step "
+                             f"(step_ms = {self.step_ms:g}): a deadline shorter than a step launches no movement; "
+                             f"got {bad}")
+        return t
