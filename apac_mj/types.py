@@ -222,6 +222,10 @@ class Arbitrator(abc.ABC):
     #: decision). False (the default): the episode loop computes the actor's pass only where the habit acts, so a
     #: step's measured decision time holds no habit pass that no member uses.
     needs_habit_action: bool = False
+    #: Whether :meth:`use_habit` reads :attr:`ArbitrationContext.habit_probe` (the habit's sequence imagined
+    #: through the forward model, ``agent.mpc.horizon`` model passes): the forced-response test
+    #: (:mod:`apac_mj.run.forced_response`) charges the rule their time before its decision is ready.
+    needs_habit_probe: bool = False
 
     @abc.abstractmethod
     def use_habit(self, ctx: ArbitrationContext) -> Decision:

@@ -28,7 +28,7 @@ def make(task, seed=0, **overrides):
 def test_paper_tasks_keep_the_ideal_plant():
     """Every task without a [plant] table has the ideal plant, and its model is the MJCF's as compiled."""
     ideal = [n for n in task_names() if not load_task(n).plant.dynamic]
-    assert len(ideal) == 14
+    assert len(ideal) == 15
     env = make("changing_target")
     m = env.physics.model
     assert env.physics.plant is None and env._n_sub_steps == planar_arm.N_SUB_STEPS

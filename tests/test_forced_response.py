@@ -263,7 +263,7 @@ def test_the_command_line_tests_reports_and_records_a_trained_run(trained_runs, 
                          "--set", "repeats=1", "--set", "prep_times_ms=100,400,900"]) == 0
         df = pd.read_parquet(out)
         assert set(fr.COLUMNS) <= set(df.columns)
-        assert set(df.variant) == set(fr.variants(kind)) and sorted(df.prep_ms.unique()) == prep
+        assert set(df.variant) == {kind} and sorted(df.prep_ms.unique()) == prep  # neither has a delta rule
         assert sorted(df.cue.unique()) == [0, 1, 2, 3] and sorted(df.seed.unique()) == [0, 1]
         assert (df[list(fr.OUTCOMES)].sum(axis=1) == 7).all()
         assert (df[df.prep_ms == 100.0].timeout == 7).all()  # nothing is ready at 100 ms: no movement
@@ -327,3 +327,35 @@ def test_the_peak_table_finds_the_peak_its_ends_and_when_half_the_responses_are_
                         {100.0: [0, 0, 0], 400.0: [0, 0, 0], 1000.0: [0, 0, 0]})
     row = rep.peaks(rep.per_seed(flat)).iloc[0]
     assert not bool(row.separated) and np.isnan(row.t50_correct_remapped_ms)
+
+
+def test_variants_follow_the_kinds_rule_not_its_name():
+    """A kind whose rule is the delta rule (any name) is also tested on the imagined delta; a rule reading the
+    habit's probe (wrapped or not) is charged the probe's model passes, the others nothing."""
+    from apac_mj import kinds
+    from apac_mj.agent.arbitration import DeltaArbitrator
+    from apac_mj.run import variants as vn
+    from apac_mj.run.timing import Timing
+
+    kinds.register(kinds.AgentKind("delta_renamed", "Renamed", "k", arbitrator=lambda cfg: DeltaArbitrator(cfg)))
+    try:
+        assert fr.variants(AgentConfig(kind="delta_renamed")) == ("delta_renamed", "delta_renamed_imagined")
+        assert vn.base_kind("delta_renamed_imagined") == "delta_renamed"
+        assert vn.label("delta_renamed_imagined") == "Renamed, delta of the imagined transition"
+        assert vn.label("delta_renamed", fr.variants(AgentConfig(kind="delta_renamed"))) == "Renamed, paper's delta rule"
+    finally:
+        kinds.unregister("delta_renamed")
+    spac, ddpg, voc = (AgentConfig(kind=k) for k in ("spac", "ddpg", "apac_voc"))
+    assert fr.variants(spac) == ("spac",) and fr.variants(voc) == ("apac_voc",)
+    t = Timing()
+    horizon = voc.params["mpc"].horizon
+    assert fr.rule_ms("apac_voc", voc, t) == t.model_pass_ms * horizon > 0
+    assert fr.rule_ms("spac", spac, t) == fr.rule_ms("ddpg", ddpg, t) == 0.0
+    assert fr.rule_ms("apac", AgentConfig(kind="apac"), t) == 0.0
+    assert fr.rule_ms("apac_imagined", AgentConfig(kind="apac"), t) == t.model_pass_ms
+    seen = AgentConfig(kind="apac_vision")
+    seen.params["vision_aware"] = dataclasses.replace(seen.params["vision_aware"], base="apac_voc")
+    assert kinds.arbitrator_for(seen).needs_habit_probe
+    assert not kinds.arbitrator_for(AgentConfig(kind="apac_vision")).needs_habit_probe
+    assert vn.label("ddpg") == "DDPG (habit only)" and vn.label("spac") == "SPAC (planning only)"
+    assert vn.order(["apac_voc", "apac_imagined", "ddpg", "apac"]) == ["ddpg", "apac", "apac_imagined", "apac_voc"]

@@ -159,7 +159,7 @@ def test_use_habit_must_return_one_bool_per_member():
 def test_kind_names_appear_only_in_the_registry_and_the_papers_table():
     """No module tests a kind's name: string constants equal to a built-in name live only in kinds.py,
     in the report's table of the paper's values (PAPER, apac_mj/report/quantities.py) and in rules.py's
-    DEFAULT_KIND."""
+    DEFAULT_KIND and a study's default list (the forced-response protocol's STUDY_KINDS, data as a preset's list)."""
     found = []
     for path in sorted(PACKAGE.rglob("*.py")):
         if path.name == "kinds.py":
@@ -167,7 +167,7 @@ def test_kind_names_appear_only_in_the_registry_and_the_papers_table():
         tree = ast.parse(path.read_text())
         allowed = set()
         for node in ast.walk(tree):
-            if isinstance(node, ast.Assign) and any(getattr(t, "id", None) in ("PAPER", "DEFAULT_KIND")
+            if isinstance(node, ast.Assign) and any(getattr(t, "id", None) in ("PAPER", "DEFAULT_KIND", "STUDY_KINDS")
                                                     for t in node.targets):
                 allowed |= {id(n) for n in ast.walk(node)}
         for node in ast.walk(tree):

@@ -286,6 +286,7 @@ class ValueOfComputationArbitrator(RunningArbitrator):
     every step plans at the full budget.
     """
 
+    needs_habit_probe = True
     STATS = {"gain": Stat(float("nan"), (len(VOC_EDGES) + 1, 64)),
              "habit_seconds": Stat(float("nan")), "iteration_seconds": Stat(float("nan"))}
 
@@ -376,6 +377,11 @@ class VisionAwareArbitrator(Arbitrator):
     def needs_habit_action(self) -> bool:  # type: ignore[override]
         """The dark check reads the habit's proposal before deciding; the base rule may too."""
         return self.dark == "check" or self.base.needs_habit_action
+
+    @property
+    def needs_habit_probe(self) -> bool:  # type: ignore[override]
+        """Whether the base rule reads the habit's probe (this rule adds none)."""
+        return self.base.needs_habit_probe
 
     def use_habit(self, ctx: ArbitrationContext) -> Decision:
         decision = self.base.use_habit(ctx)

@@ -50,7 +50,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--cue", type=int, default=None, help="record: the cue shown (default the first remapped one)")
     p.add_argument("--member", type=int, default=0, help="record: which seed of the run (its index)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="a protocol or timing field (repeatable): seeds=0-9, practice=100,400, trials=100, "
+                   help="a protocol or timing field (repeatable): seeds=0-9, practice=100,400,1000, trials=100, "
                         "timing.habit_latency_ms=300, ...")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=run)

@@ -16,8 +16,11 @@ from typing import Any, Callable
 
 from apac_mj.run.timing import Timing
 
-#: The practice lengths of the published study (training episodes per seed): the "4 days" and "20 days" analogues.
-PRACTICE = (100, 400)
+#: The practice lengths of the published study (training episodes per seed): the "4 days" and "20 days" analogues
+#: and the paper's length.
+PRACTICE = (100, 400, 1000)
+#: The agent kinds of the published study: the paper's three and the graded arbitrator (data, as a preset's list).
+STUDY_KINDS = ("ddpg", "spac", "apac", "apac_voc")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -25,7 +28,7 @@ class Protocol:
     """What the study runs. The defaults are the published study's (docs/results/forced_response/)."""
 
     #: The agent kinds trained and tested (APAC's delta rule is also tested on the imagined transition's delta).
-    agents: tuple[str, ...] = ("ddpg", "spac", "apac", "apac_voc")
+    agents: tuple[str, ...] = STUDY_KINDS
     #: The cued task (its ``[cues] swap`` names the remapped cues).
     task: str = "cued_targets"
     #: Seeds, trained side by side in each kind's run.
@@ -38,8 +41,8 @@ class Protocol:
     trials: int = 100
     #: Runs of the frozen agent per seed and cue (the model planner samples: each repeat is a fresh plan).
     repeats: int = 3
-    #: Minibatch of the updates (the paper's 500 costs 8x the time; 64 is the README's quick look: a deviation
-    #: for the study's time budget, docs/results/forced_response/README.md).
+    #: Minibatch of the updates: 64, not the paper's 500, for the study's time budget (6.5 ms against 35.0 ms
+    #: per update per seed at the paper's sizes, docs/results/arbitrators/; docs/results/forced_response/).
     batch_size: int = 64
     #: Time in a decision.
     timing: Timing = Timing()
@@ -125,6 +128,7 @@ def record_trials(run_dir: str | Path, out: str | Path, prep_times_ms: tuple[flo
     from apac_mj.run.evaluate import eval_env
     from apac_mj.run.rollout import EpisodeLoop
     from apac_mj.run.run_dir import config_dict
+    from apac_mj.run.variants import label
     from apac_mj.suite import spec_for
 
     times = timing.check_deadlines(prep_times_ms)
@@ -133,9 +137,10 @@ def record_trials(run_dir: str | Path, out: str | Path, prep_times_ms: tuple[flo
     if not spec.cued or not spec.cues.swap:
         raise ValueError(f"run {run_dir}: task {cfg.task!r} is not a cued task with remapped cues")
     cue = spec.cues.remapped[0] if cue is None else cue
-    variant = variant or fr.variants(cfg.agent.kind)[-1]
-    if variant not in fr.variants(cfg.agent.kind):
-        raise ValueError(f"variant {variant!r}: a {cfg.agent.kind} run is tested as {fr.variants(cfg.agent.kind)}")
+    tested = fr.variants(cfg.agent)
+    variant = variant or tested[-1]
+    if variant not in tested:
+        raise ValueError(f"variant {variant!r}: a {cfg.agent.kind} run is tested as {tested}")
     if not 0 <= cue < spec.cues.n:
         raise ValueError(f"cue {cue}: task {cfg.task!r} has cues 0..{spec.cues.n - 1}")
     if not 0 <= member < len(cfg.seeds):
@@ -163,7 +168,7 @@ def record_trials(run_dir: str | Path, out: str | Path, prep_times_ms: tuple[flo
             who = (f"the planner acts ({int(k)} iteration(s))" if plan else "the habit acts" if habit
                    else "nothing is ready: no movement (a time-out)")
             recorder.note = (f"deadline {t:.0f} ms: {who}; habit ready at {H:.0f} ms, planner from {S:.0f} ms "
-                             f"({ready} of {K} iteration(s) by the deadline); {fr.LABEL.get(variant, variant)}, "
+                             f"({ready} of {K} iteration(s) by the deadline); {label(variant, tested)}, "
                              f"cue {cue} (remapped)")
             say(recorder.note)
             if plan or habit:

@@ -12,9 +12,8 @@ from typing import Sequence
 import numpy as np
 import pandas as pd
 
-#: How the report names each tested variant.
-LABELS = {"ddpg": "DDPG (habit only)", "spac": "SPAC (planning only)", "apac": "APAC, paper's delta rule",
-          "apac_imagined": "APAC, delta of the imagined transition", "apac_voc": "APAC-VOC (graded)"}
+from apac_mj.run.variants import label, order
+
 #: Preparation times that count as short and long in the peak table (ms).
 SHORT_MS, LONG_MS = 150.0, 900.0
 _RATES = ("correct", "habitual", "other", "timeout", "error")
@@ -116,7 +115,8 @@ def figure(curve: pd.DataFrame, out: str | Path, human: pd.DataFrame | None = No
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    variants = list(variants or [v for v in LABELS if v in set(curve.variant)])
+    tested = order(curve.variant)
+    variants = list(variants or tested)
     practices = sorted(curve.practice.unique())
     fig, axes = plt.subplots(len(variants), 2, figsize=(10, 2.3 * len(variants)), sharex=True, sharey=True,
                              squeeze=False)
@@ -134,7 +134,7 @@ def figure(curve: pd.DataFrame, out: str | Path, human: pd.DataFrame | None = No
                                   f", {p} episodes")
                     ax.fill_between(g.prep_ms, g[f"{rate}_lo"], g[f"{rate}_hi"], color=color, alpha=0.15 * shade)
                 ax.plot(g.prep_ms, g["timeout"], color="0.3", ls=":", alpha=shade, lw=1)
-            ax.set_title(f"{LABELS.get(v, v)}: {'remapped' if remapped else 'unchanged'} cues", fontsize=9)
+            ax.set_title(f"{label(v, tested)}: {'remapped' if remapped else 'unchanged'} cues", fontsize=9)
             ax.set_ylim(-0.02, 1.02)
             ax.grid(alpha=0.3)
     for ax in axes[-1]:

@@ -12,7 +12,7 @@ docs/forced_response.md). The two systems prepare in parallel from the cue:
 * the arbitrator's inputs are ready ``rule_ms`` after the habit: none for the paper's delta rule (it reads the
   last transition's delta, which the first decision of a trial does not have: the habit acts on the first
   steps, ``habit_first_steps``), one forward-model pass for the delta of the habit's imagined transition
-  (``apac_imagined``), the habit's sequence through the model (``horizon`` passes) for the graded rule.
+  (the kind's name and ``_imagined``, :mod:`apac_mj.run.variants`), the habit's sequence through the model (``horizon`` passes) for the graded rule.
 
 At the deadline the arm acts by what is ready: the arbitrator's choice where its inputs are ready (a plan only
 with at least one finished iteration, cut to the iterations done), else the habit where it is ready, else the
@@ -36,24 +36,26 @@ import numpy as np
 import torch
 
 from apac_mj import kinds
+from apac_mj.agent.arbitration import DeltaArbitrator
+from apac_mj.rules import MPCParams
 from apac_mj.run.timing import Timing
+from apac_mj.run.variants import IMAGINED
 from apac_mj.types import END, TARGET, ArbitrationContext, Arbitrator, Decision, Policy
 
 #: Outcomes of a trial, in the order of the count columns.
 OUTCOMES = ("correct", "habitual", "other", "timeout")
 #: Which candidate a trial executed (the ``acted`` columns).
 ACTORS = ("habit", "planner", "default")
-#: How recordings and reports name each tested variant.
-LABEL = {"ddpg": "DDPG", "spac": "SPAC", "apac": "APAC (paper's delta rule)",
-         "apac_imagined": "APAC (delta of the imagined transition)", "apac_voc": "APAC-VOC (graded)"}
 #: The hand moved less than this (cm) from its start: no movement (a time-out).
 STILL_CM = 1.0
 
 
-#: The variants a kind is tested as: the kind's own rule, and for the paper's delta rule also the delta of the
-#: habit's imagined transition (what the rule could read at a trial's first decision).
-def variants(kind: str) -> tuple[str, ...]:
-    return (kind, "apac_imagined") if kind == "apac" else (kind,)
+def variants(cfg_agent: Any) -> tuple[str, ...]:
+    """The variants a kind is tested as (:mod:`apac_mj.run.variants`): the kind's own rule, and for the paper's
+    delta rule also the delta of the habit's imagined transition (what the rule could read at a trial's first
+    decision)."""
+    delta_rule = isinstance(kinds.arbitrator_for(cfg_agent), DeltaArbitrator)
+    return (cfg_agent.kind, cfg_agent.kind + IMAGINED) if delta_rule else (cfg_agent.kind,)
 
 
 @dataclasses.dataclass
@@ -97,11 +99,12 @@ def imagined_delta(agent: Policy, state: torch.Tensor, action: torch.Tensor, zon
 
 def rule_ms(variant: str, cfg_agent: Any, timing: Timing) -> float:
     """How long after the habit's proposal the rule of ``variant`` has its inputs: the imagined transition's
-    delta one forward-model pass, the graded rule's probe ``horizon`` of them; the other rules none."""
-    if variant == "apac_imagined":
+    delta one forward-model pass, a rule reading the habit's probe ``agent.mpc.horizon`` of them; the other
+    rules none."""
+    if variant != cfg_agent.kind and variant.endswith(IMAGINED):
         return timing.model_pass_ms
-    if variant == "apac_voc":
-        return timing.model_pass_ms * cfg_agent.params["mpc"].horizon
+    if kinds.arbitrator_for(cfg_agent).needs_habit_probe:
+        return timing.model_pass_ms * cfg_agent.params[MPCParams.table].horizon
     return 0.0
 
 
@@ -159,7 +162,7 @@ def candidates(loop: Any, cfg: Any, variant: str, repeats: int, timing: Timing) 
 def _rule(loop: Any, ctx: ArbitrationContext, variant: str, cfg: Any) -> tuple[np.ndarray, np.ndarray]:
     """The rule's decision at a trial's first step: ``[E]`` habit, ``[E]`` iterations granted to a plan."""
     K = loop.planner.max_iterations
-    if variant == "apac_imagined":
+    if variant != cfg.agent.kind:  # the delta rule on the imagined transition's delta
         delta = imagined_delta(loop.agent, ctx.state, ctx.habit_action, loop.zone_radius).abs().cpu().numpy()
         return delta < cfg.agent.delta_threshold, np.full(ctx.E, K)
     decision = loop.arbitrator.use_habit(ctx)
@@ -260,7 +263,7 @@ def test_run(run_dir: Any, prep_times_ms: Sequence[float], timing: Timing = Timi
     kind = kinds.get(cfg.agent.kind)
     env = eval_env(cfg, spec, loaded.ckpt.member_lengths(), occluded=False)
     rows = []
-    for variant in variants(cfg.agent.kind):
+    for variant in variants(cfg.agent):
         loop = EpisodeLoop(loaded.agent, arbitrator_for(cfg.agent), env, zone_radius=spec.zone_radius, adapt=False)
         loop.load_state_dict(loaded.ckpt.running_statistics())
         c = candidates(loop, cfg, variant, repeats, timing)
