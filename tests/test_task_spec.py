@@ -1,4 +1,5 @@
 """Task files: every shipped file is valid, and malformed files fail naming the problem."""
+import numpy as np
 import pytest
 
 from apac_mj.util import paths
@@ -180,3 +181,19 @@ def test_tasks_command_lists_every_task_and_shows_one(capsys):
     assert main(["tasks", "--show", "changing_target"]) == 0
     shown = dict(line[2:].split(" = ", 1) for line in capsys.readouterr().out.splitlines())
     assert (shown["report_short"], shown["report_color"]) == ("'cs'", "'tab:olive'")
+
+
+def test_joint_angles_for_inverts_the_motion_function_inside_the_joint_range():
+    """Algorithm 1 forward, then the reach check's inverse: in-range angles that put the hand where it was; a
+    point beyond l1 + l2 or reachable only with a joint outside the range has none."""
+    from apac_mj.kinematics import motion_function
+    from apac_mj.suite.task_spec import joint_angles_for
+
+    rng = np.random.default_rng(0)
+    for a, b in rng.uniform(5.0, 175.0, size=(50, 2)):
+        end, _ = motion_function(a, b, 10.0, 8.0, (0.0, 0.0))
+        found = joint_angles_for(end[0], end[1], 10.0, 8.0, (0.0, 180.0))
+        assert found is not None and all(0.0 <= v <= 180.0 for v in found)
+        np.testing.assert_allclose(motion_function(*found, 10.0, 8.0, (0.0, 0.0))[0], end, atol=1e-9)
+    assert joint_angles_for(18.5, 0.0, 10.0, 8.0, (0.0, 180.0)) is None  # beyond reach
+    assert joint_angles_for(0.0, -12.0, 10.0, 8.0, (0.0, 180.0)) is None  # below the shoulder: a joint < 0
