@@ -45,13 +45,14 @@ _PUBLIC = {
     "register_task": "apac_mj.suite.task_spec:register_task",
     "TaskSpec": "apac_mj.suite.task_spec:TaskSpec",
     "kinds": "apac_mj.kinds",
+    "systems": "apac_mj.systems",
     "suite": "apac_mj.suite",
 }
 
 __all__ = ["__version__", *_PUBLIC]
 
 if TYPE_CHECKING:  # what a type checker and an IDE see; at run time __getattr__ loads them
-    from apac_mj import kinds, suite
+    from apac_mj import kinds, suite, systems
     from apac_mj.config import AgentConfig, TrainConfig
     from apac_mj.demo import run_demo
     from apac_mj.experiments.grid import run_grid

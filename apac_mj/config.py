@@ -103,7 +103,8 @@ class AgentConfig:
 
     # -- integrator (apac_mj/agent/integrator.py) ------------------------------------
     #: "pass_through" (the paper: the seen position if seen, else the forward model's prediction) or
-    #: "kalman" (a Kalman filter over the forward model: fuses prediction and noisy observation).
+    #: "kalman" (a Kalman filter over the forward model: fuses prediction and noisy observation), or one registered by
+    #: ``apac_mj.systems.register_integrator`` (checked by ``apac_mj.kinds.check``).
     integrator: str = "pass_through"
 
     # -- motor babbling -------------------------------------------------------
@@ -178,8 +179,7 @@ class AgentConfig:
                 raise ValueError(f"{name} must be in (0, 1], got {v}")
         for name, choices in (("critic_form", ("concat", "summed", "separable")), ("action_squash", ("tanh", "feasible")),
                               ("delta_rule", ("abs", "signed")), ("critic_action", ("executed", "commanded")),
-                              ("executed_action", EXECUTED_ACTIONS),
-                              ("integrator", tuple(rules.INTEGRATORS))):
+                              ("executed_action", EXECUTED_ACTIONS)):
             if getattr(self, name) not in choices:
                 raise ValueError(f"{name} must be one of {choices}, got {getattr(self, name)!r}")
         for f in dataclasses.fields(self):  # every number finite: a NaN would change the method silently

@@ -23,19 +23,16 @@ pools and Ray workers only if the registering module is imported there too.
 from __future__ import annotations
 
 import dataclasses
-from typing import TYPE_CHECKING, Callable, Sequence
+from typing import TYPE_CHECKING, Callable
 
-from apac_mj import rules
+from apac_mj import rules, systems
 from apac_mj.rules import (MPCParams, ReliabilityParams, SpeedAccuracyParams, UncertaintyParams,
                            ValueOfComputationParams, VisionAwareParams)
 from apac_mj.util.registry import Registry
 
-#: The planning systems a kind may name (apac_mj.agent.planner.build).
-PLANNERS = ("inverse", "mpc")
-
 if TYPE_CHECKING:
     from apac_mj.config import AgentConfig
-    from apac_mj.types import Arbitrator, Planner
+    from apac_mj.types import Arbitrator
 
 
 class UnknownKindError(ValueError, KeyError):
@@ -69,8 +66,9 @@ class AgentKind:
     #: The table of the rule's parameters (apac_mj.rules: a dataclass with a ``table`` name; registered with
     #: the kind, so ``agent.<table>.<field>`` reaches it); None: the rule reads only AgentConfig's fields.
     params: type | None = None
-    #: The planning system: "inverse" (the paper's inverse model, one query per step) or "mpc" (model-predictive
-    #: control through the learned forward model, apac_mj.agent.planner; its table ``agent.mpc``).
+    #: The planning system, a registered planner (:mod:`apac_mj.systems`): "inverse" (the paper's inverse model,
+    #: one query per step), "mpc" (model-predictive control through a learned dynamics model, its table
+    #: ``agent.mpc``) or one registered by ``systems.register_planner``.
     planner: str = "inverse"
 
     def __post_init__(self) -> None:
@@ -78,8 +76,10 @@ class AgentKind:
             raise ValueError(f"agent kind name must be a non-empty identifier, got {self.name!r}")
         if not (self.uses_habit or self.uses_planner):
             raise ValueError(f"agent kind {self.name!r} must use the habit, the planner or both")
-        if self.planner not in PLANNERS:
-            raise ValueError(f"agent kind {self.name!r}: planner must be one of {PLANNERS}, got {self.planner!r}")
+        if self.planner not in systems.PLANNERS:
+            raise ValueError(f"agent kind {self.name!r}: planner must be a registered planner, one of "
+                             f"{systems.PLANNERS.names()} (apac_mj.systems.register_planner adds one), "
+                             f"got {self.planner!r}")
         if not callable(self.arbitrator):
             raise ValueError(f"agent kind {self.name!r}: arbitrator must be callable (AgentConfig -> Arbitrator)")
 
@@ -97,11 +97,7 @@ _KINDS: Registry[AgentKind] = Registry(
 def register(kind: AgentKind, replace: bool = False) -> AgentKind:
     """Add ``kind`` (and its parameter table) to the registry (after the kinds already there); a taken name
     needs ``replace=True``."""
-    if not replace:
-        _KINDS.check_new(kind.name)
-    if kind.params is not None:
-        rules.register(kind.params)
-    return _KINDS.replace(kind.name, kind)
+    return systems.add(_KINDS, kind, replace)
 
 
 def unregister(name: str) -> None:
@@ -123,9 +119,13 @@ def names() -> tuple[str, ...]:
 
 def check(cfg: AgentConfig) -> None:
     """Refuse an AgentConfig naming an unregistered kind (an error listing the registered ones), a vision-aware
-    base that is not a kind, or habit formation for a kind that does not arbitrate."""
+    base that is not a kind, an unregistered integrator (:mod:`apac_mj.systems`), or habit formation for a kind
+    that does not arbitrate."""
     kind = get(cfg.kind)
     get(cfg.params[VisionAwareParams.table].base)
+    if cfg.integrator not in systems.INTEGRATORS:
+        raise ValueError(f"integrator must be one of {systems.integrator_names()}, got {cfg.integrator!r} "
+                         "(apac_mj.systems.register_integrator adds one)")
     if cfg.habit_distillation_weight > 0 and not kind.arbitrates:
         raise ValueError(f"habit_distillation_weight = {cfg.habit_distillation_weight} needs a kind that arbitrates "
                          f"(it pulls the habit towards the planner); {kind.name!r} uses only the "
@@ -144,15 +144,6 @@ def arbitrator_for(cfg: AgentConfig, state: dict | None = None) -> Arbitrator:
                         "apac_mj.types.Arbitrator (subclass it: use_habit returns a Decision)")
     arbitrator.load_state_dict(state or {})
     return arbitrator
-
-
-def planner_for(cfg: AgentConfig, seeds: Sequence[int], action_dim: int, zone_radius: float,
-                stop_speed: float | None = None) -> Planner:
-    """The planning system of ``cfg.kind`` for the members ``seeds``, judging imagined arrival by the task's
-    ``zone_radius`` (cm) and ``stop_speed`` (deg/s; None: the zone alone)."""
-    from apac_mj.agent import planner
-
-    return planner.build(get(cfg.kind).planner, cfg, seeds, action_dim, zone_radius, stop_speed)
 
 
 def _builtin(name: str, beyond: bool = False) -> Callable[[AgentConfig], Arbitrator]:

@@ -274,7 +274,3 @@ def _is_int(v: Any) -> bool:
 
 def _finite(v: Any) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-
-
-#: The integrators by ``AgentConfig.integrator`` name, with the table of their parameters (None: none).
-INTEGRATORS: dict[str, type | None] = {"pass_through": None, "kalman": KalmanParams}

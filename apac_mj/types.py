@@ -20,42 +20,21 @@ import numpy as np
 if TYPE_CHECKING:
     import torch
 
-    from apac_mj.agent.noise import OUNoise
     from apac_mj.config import AgentConfig
-    from apac_mj.kinematics import Sizes
+    from apac_mj.layout import Sizes
 
 #: Time cost of one action of each controller (the paper's Fig. 6: planning three times slower than a habit).
 PLANNING_COST, HABIT_COST = 3, 1
-#: The agent's four losses (``Agent.update``), in the order of metrics.parquet's ``<name>_loss`` columns.
+#: The agent's four losses (``Agent.update``), in the order of metrics.parquet's ``<name>_loss`` columns; an agent
+#: with a dynamics model adds ``"dynamics"`` (``Agent.loss_names``), its column after the others.
 LOSSES = ("critic", "actor", "forward", "inverse")
+#: The measured per-episode columns (``EpisodeState.summary``): the decision time where the habit and where the
+#: planner acted (s) and the planning iterations. Wall times differ from run to run; the iterations do not.
+TIMING_COLUMNS = ("habit_seconds", "planning_seconds", "plan_iterations")
 
-# -- the agent's state ---------------------------------------------------------------------------
-# The state the agent acts and learns on (``StepInfo.state``, ``ArbitrationContext.state``, the replay
-# memory) is ``[E, 6 + extra]`` (cm), laid out
-#
-#     [end_x, end_y, elbow_x, elbow_y, target_x, target_y, extra...]
-#
-# the positions (the integrator's estimate) followed by the task's extra observations, read as they are
-# every step (``VecEnv.extra``: e.g. joint velocities on ``changing_target_torque``; none on the paper's
-# tasks). Read it through these names, on the last axis (``state[:, TARGET]``, ``s[..., ARM]``), never by
-# position. ``[end, elbow]`` arrays (``StepInfo.true_arm``, ``predicted_arm``) share the first four.
-#: The end effector (hand).
-END = slice(0, 2)
-#: The elbow.
-ELBOW = slice(2, 4)
-#: The arm: ``[end, elbow]`` (what the forward model predicts).
-ARM = slice(0, 4)
-#: The target.
-TARGET = slice(4, 6)
-#: The positions: ``[end, elbow, target]`` (what the integrator estimates).
-POSITIONS = slice(0, 6)
-#: The task's extra observations (empty on the paper's tasks).
-EXTRA = slice(6, None)
-#: In an ``[end, elbow, extra...]`` array (the forward model's prediction where the task observes more than
-#: the positions): the extra part.
-MOTION_EXTRA = slice(4, None)
-#: Width of the positions; the state is ``POSITION_DIM + extra`` wide.
-POSITION_DIM = 6
+# The agent's state and its named parts (END, TARGET, ...) are apac_mj.layout's; named here too, for the records.
+from apac_mj.layout import (ARM, ELBOW, END, EXTRA, MOTION_EXTRA, POSITION_DIM, POSITIONS,  # noqa: E402,F401
+                            TARGET, StateLayout)
 
 
 @dataclasses.dataclass
@@ -222,6 +201,10 @@ class Arbitrator(abc.ABC):
     #: decision). False (the default): the episode loop computes the actor's pass only where the habit acts, so a
     #: step's measured decision time holds no habit pass that no member uses.
     needs_habit_action: bool = False
+    #: Whether :meth:`use_habit` reads :attr:`ArbitrationContext.last_delta` (the paper's delta rule): the
+    #: forced-response test then also tests the rule on the delta of the habit's imagined transition, the only
+    #: delta a trial's first decision could read (:mod:`apac_mj.run.variants`).
+    reads_last_delta: bool = False
     #: Whether :meth:`use_habit` reads :attr:`ArbitrationContext.habit_probe` (the habit's sequence imagined
     #: through the forward model, ``agent.mpc.horizon`` model passes): the forced-response test
     #: (:mod:`apac_mj.run.forced_response`) charges the rule their time before its decision is ready.
@@ -270,6 +253,21 @@ class Proposal:
     habit_value: torch.Tensor | None = None
 
 
+@dataclasses.dataclass(frozen=True)
+class PlanningTask:
+    """What a planner is built for (``apac_mj.systems.PlannerKind.build``): the members, the action's size and the
+    task's success criterion its imagined rollouts stop at."""
+
+    #: The members' seeds (a planner's random streams derive from them).
+    seeds: tuple[int, ...]
+    #: Length of an action.
+    action_dim: int
+    #: Radius (cm) of the target zone.
+    zone_radius: float
+    #: Every joint slower than this (deg/s) counts as stopped (a task with a stop criterion); None: the zone alone.
+    stop_speed: float | None = None
+
+
 class Planner(abc.ABC):
     """The planning system's proposal (``apac_mj.agent.planner``): the paper's inverse model, or a planner
     through the forward model. It may keep what it carries between steps (a warm start) and random streams
@@ -281,11 +279,11 @@ class Planner(abc.ABC):
     last_plan: dict[str, torch.Tensor] | None = None
 
     @abc.abstractmethod
-    def propose(self, agent: "Policy", ctx: ArbitrationContext, iterations: torch.Tensor) -> Proposal:
+    def propose(self, agent: "WorldModel", ctx: ArbitrationContext, iterations: torch.Tensor) -> Proposal:
         """Proposals for every member from ``ctx.state``; ``iterations`` ``[E]`` ints: each member's budget
         (0: the member does not plan this step; its row is not used)."""
 
-    def probe(self, agent: "Policy", state: torch.Tensor) -> HabitProbe | None:
+    def probe(self, agent: "WorldModel", state: torch.Tensor) -> HabitProbe | None:
         """The habit imagined through the model (for the arbitrators that weigh planning); None: no model."""
         return None
 
@@ -340,12 +338,22 @@ class Integrator(abc.ABC):
             raise ValueError(f"{type(self).__name__} has no state; got keys {sorted(d)}")
 
 
+class Noise(Protocol):
+    """The exploration noise, one process per member (``apac_mj.agent.noise.OUNoise``)."""
+
+    def reset(self, mask: torch.Tensor | None = None) -> None:
+        """Restart the processes of the members in ``mask`` ``[E]`` (None: all)."""
+
+    def sample(self, mask: torch.Tensor | None = None, sigma: Any = None) -> torch.Tensor:
+        """The next noise ``[E, A]`` of the members in ``mask`` (the others' rows zero), at ``sigma`` ``[E]``."""
+
+
 class Policy(Protocol):
     """What the episode loop (``apac_mj.run.rollout``) calls on an agent (``apac_mj.agent.agent.Agent``)."""
 
-    cfg: AgentConfig  # the exploration schedule (``ou_sigma_at``)
+    cfg: AgentConfig  # the exploration schedule (``ou_sigma_at``), gamma
     device: torch.device
-    noise: OUNoise  # the exploration noise: ``reset(mask)``, ``sample(active, sigma)``
+    noise: Noise  # the exploration noise: ``reset(mask)``, ``sample(active, sigma)``
     sizes: Sizes  # the task's sizes: state and action dimensions, action bound
 
     def actor_action(self, state: torch.Tensor) -> torch.Tensor:
@@ -363,3 +371,25 @@ class Policy(Protocol):
     def td_error(self, s: torch.Tensor, a: torch.Tensor, r: torch.Tensor, s2: torch.Tensor,
                  done: torch.Tensor) -> torch.Tensor:
         """This transition's TD error ``[E]``."""
+
+
+class WorldModel(Policy, Protocol):
+    """What a planner (:class:`Planner`) calls on an agent: the episode loop's calls and the learned model,
+    batched over candidates (``[E, B, ...]``)."""
+
+    layout: StateLayout  # the state's parts (``layout.motion``: the joint velocities where observed)
+
+    def imagine(self, state: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        """The next state ``[E, B, S]`` the model predicts after the executable ``action`` ``[E, B, A]``."""
+
+    def value(self, state: torch.Tensor) -> torch.Tensor:
+        """The critic's ``Q(s, pi(s))`` ``[E, B]`` (cm of return)."""
+
+    def habit_u(self, state: torch.Tensor) -> torch.Tensor:
+        """The actor's tanh output ``[E, B, A]`` in ``state`` ``[E, B, S]``."""
+
+    def to_action(self, u: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
+        """A tanh output ``u`` in [-1, 1] as an action in state ``s``."""
+
+    def inverse_action(self, state: torch.Tensor) -> torch.Tensor:
+        """The inverse model's proposal ``[E, S] -> [E, A]`` with the target as the hand's goal."""

@@ -14,7 +14,8 @@ file by file (metrics.parquet, eval/*.parquet, eval/summary.json, config.json an
                          # a summary key); issue 29: the run's task recorded in config.json
 
 Each cell trains 2 seeds for a few tiny episodes (babbling, planning and habit phases), in two calls (half, then
-extended to the full length: the resume path), then runs the frozen tests on a few targets. A cell that raises
+extended to the full length: the resume path), then runs the frozen tests on a few targets (on a cued task: the
+forced-response test at three deadlines, ``eval/forced_response.parquet``). A cell that raises
 records the error (``error.txt``); the comparison lists cells that failed on one side only. Refactors that claim
 "no number changes" are checked with this; it is a bench, not a test (about 10 minutes of one core).
 """
@@ -35,6 +36,8 @@ import numpy as np
 AGENT = dict(actor_hidden=(32, 32), critic_hidden=(32, 32), forward_hidden=(32, 32), inverse_hidden=(32, 32),
              batch_size=16, replay_size=200, babbling_episodes=1, planning_episodes=2, ou_sigma_anneal_episodes=4)
 EPISODES, SEEDS, LIMIT = 4, (0, 1), 3
+#: The deadlines (ms) of a cued task's forced-response test (short, intermediate, long).
+FORCED_RESPONSE_MS = (100.0, 350.0, 900.0)
 
 
 def run(out: Path, kinds: list[str] | None, tasks: list[str] | None) -> None:
@@ -69,6 +72,12 @@ def _cell(apac_mj: Any, kind: str, task: str, cell: Path) -> None:
     run_dir = cell / "run"
     apac_mj.train(cfg, run_dir, progress=False)
     apac_mj.train(dataclasses.replace(cfg, episodes=EPISODES), run_dir, progress=False)
+    if apac_mj.suite.load_spec(task).cued:  # a cued task's frozen test is the forced-response test
+        from apac_mj.run.forced_response import test_run
+
+        (run_dir / "eval").mkdir(exist_ok=True)
+        test_run(run_dir, FORCED_RESPONSE_MS, trials=5, repeats=1).to_parquet(run_dir / "eval" / "forced_response.parquet")
+        return
     protocols = ["grid", "occluded"] + (["generalization"] if "train_region" in task else [])
     apac_mj.evaluate(run_dir, protocols, limit=LIMIT)
 

@@ -36,7 +36,7 @@ from apac_mj.recording import recording as R
 from apac_mj.suite import render
 from apac_mj import suite
 from apac_mj.config import TrainConfig
-from apac_mj.kinematics import Sizes
+from apac_mj.layout import Sizes
 from apac_mj.run.build import make_agent
 
 

@@ -54,7 +54,7 @@ from torch import nn
 from apac_mj.agent.agent import Agent
 from apac_mj.agent.precision import cpu_info, resolve
 from apac_mj.config import AgentConfig, TrainConfig
-from apac_mj.kinematics import Sizes
+from apac_mj.layout import Sizes
 from apac_mj.run.build import make_agent
 from apac_mj.suite import spec_for
 from apac_mj.types import ARM, END
@@ -127,12 +127,12 @@ def rest_of_step(agent: Agent) -> Callable[[], None]:
     (the trainer's :class:`apac_mj.run.rollout.EpisodeLoop` on a real ``VecEnv``)."""
     import numpy as np
 
-    from apac_mj.kinds import arbitrator_for
-    from apac_mj.run.rollout import EpisodeLoop, EpisodeState
+    from apac_mj.run.build import episode_loop
+    from apac_mj.run.rollout import EpisodeState
     from apac_mj.suite.vec_env import VecEnv
 
     E = agent.E
-    loop = EpisodeLoop(agent, arbitrator_for(agent.cfg), VecEnv("changing_target", list(range(E))))
+    loop = episode_loop(agent, VecEnv("changing_target", list(range(E))))
     active, episode = np.ones(E, dtype=bool), np.full(E, 200)
     st = EpisodeState.fresh(E, agent.device)
     loop.start(st, active)

@@ -17,13 +17,27 @@ def nets(*hidden: int) -> dict[str, tuple[int, ...]]:
 
 
 #: A tiny agent for runs that train: 16-unit networks, one babbling and two planning episodes
-#: (test_trainer, test_run_dir, test_evaluate, test_faults).
+#: (test_trainer, test_run_dir, test_evaluate, test_faults, test_hooks, test_threads, test_transfers).
 TINY = dict(nets(16, 16), batch_size=8, replay_size=64, babbling_episodes=1, planning_episodes=2)
-#: Tinier, for runs over every task and kind: 8-unit networks, one planning episode (test_build, test_state_layout).
+#: Tinier, for runs over every task and kind: 8-unit networks, one planning episode (test_build, test_state_layout;
+#: test_geometry builds agents from it and trains none).
 TINY8 = dict(nets(8, 8), batch_size=4, replay_size=50, babbling_episodes=1, planning_episodes=1)
+#: An agent whose gradients and updates are checked on hand-made minibatches (test_update; test_agent reads it
+#: from there): hidden layers of unequal widths (24, 16), so that a weight read transposed fails on its shape.
+UNEVEN = dict(nets(24, 16), replay_size=16, batch_size=8)
 #: A small model-predictive planner (the kinds that plan through a model; no effect on the others).
 TINY_MPC = {"mpc": {"horizon": 2, "candidates": 8, "elites": 2, "iterations": 2, "model_hidden": (8, 8),
                     "model_updates": 1}}
+
+
+def as_sets(agent: dict) -> list[str]:
+    """``agent``'s settings as the command line's ``--set name=value`` options, a tuple written ``16,16``."""
+    return [arg for name, value in agent.items()
+            for arg in ("--set", f"{name}={','.join(map(str, value)) if isinstance(value, tuple) else value}")]
+
+
+#: TINY's settings on the command line (``apac-mj train ... *TINY_SETS``: test_faults, test_fault_campaign).
+TINY_SETS = as_sets(TINY)
 
 
 def bench_module(name: str):

@@ -58,6 +58,25 @@ def test_an_evaluation_reads_the_task_once_and_builds_E_environments_per_protoco
     assert counted == {"task_reads": 1, "environments": 2 * 2}
 
 
+def test_a_forced_response_test_reads_the_task_once_and_builds_E_environments(tmp_path, counted, monkeypatch):
+    """The test is built on the loaded run (``frozen_loop``): one task read, E environments, and one arbitrator
+    for both of the delta rule's variants."""
+    from apac_mj import kinds
+    from apac_mj.run.forced_response import test_run
+
+    cfg = TrainConfig(task="cued_targets", seeds=(0, 1), episodes=1, checkpoint_every=1,
+                      agent=AgentConfig(kind="apac", **TINY))
+    train(cfg, tmp_path / "run", progress=False)
+    counted.update(task_reads=0, environments=0)
+    built, make = [], kinds.arbitrator_for
+    for module in (kinds, build):  # the registry's function, and the builder's name for it
+        monkeypatch.setattr(module, "arbitrator_for", lambda c, state=None: built.append(c.kind) or make(c, state))
+    df = test_run(tmp_path / "run", [300.0, 600.0], trials=2, repeats=1)
+    assert counted == {"task_reads": 1, "environments": 2}
+    assert set(df.variant) == {"apac", "apac_imagined"}
+    assert built == ["apac"]
+
+
 def test_the_agent_is_sized_by_the_environments_it_acts_in():
     cfg = TrainConfig(task="changing_target_torque", seeds=(0,), agent=AgentConfig(**TINY))
     run = build.build(cfg, build.check(cfg))

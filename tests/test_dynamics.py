@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from apac_mj import suite
-from apac_mj.kinematics import Sizes
+from apac_mj.layout import Sizes
 from apac_mj.suite import planar_arm
 from apac_mj.suite.task_spec import PlantSpec, TaskSpecError, load_task, parse_task, task_names
 

@@ -15,8 +15,9 @@ EXAMPLES = re.findall(r"```python\n(.*?)```", DOC.read_text(), flags=re.S)
 
 
 def test_the_doc_has_an_example_per_extension():
-    assert len(EXAMPLES) == 4
-    for api in ("kinds.register", "use_habit", "register_task", "register_figure"):
+    assert len(EXAMPLES) == 6
+    for api in ("kinds.register", "use_habit", "register_planner", "register_integrator", "register_task",
+                "register_figure"):
         assert any(api in e for e in EXAMPLES), api
     assert not any("apac_mj/" in line for e in EXAMPLES for line in e.splitlines() if "open(" in line)
 

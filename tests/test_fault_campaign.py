@@ -19,7 +19,7 @@ from apac_mj.run.run_dir import RunDir, TaskChanged
 from apac_mj.run.trainer import train
 from apac_mj.util import paths
 
-from conftest import TINY
+from conftest import TINY, TINY_SETS
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -238,11 +238,6 @@ def test_a_killed_grid_worker_leaves_no_leaked_semaphore(tmp_path):
 
 
 # -- item 17: memory limits ------------------------------------------------------------------------------
-
-TINY_SETS = ["--set", "actor_hidden=16,16", "--set", "critic_hidden=16,16", "--set", "forward_hidden=16,16",
-             "--set", "inverse_hidden=16,16", "--set", "batch_size=8", "--set", "replay_size=64",
-             "--set", "babbling_episodes=1", "--set", "planning_episodes=2"]
-
 
 def limited(limit_kb: int, *args: str) -> "subprocess.CompletedProcess[str]":
     """``apac-mj ARGS`` under ``ulimit -v LIMIT_KB``."""

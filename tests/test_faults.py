@@ -30,13 +30,9 @@ from apac_mj.util import files
 from apac_mj.util.lock import DirectoryLocked, locked
 from apac_mj.util.overrides import OverrideError, parse_seeds
 
-from conftest import TINY, deterministic
+from conftest import TINY, TINY_SETS, deterministic
 
 ROOT = Path(__file__).resolve().parent.parent
-#: TINY's settings on the command line.
-TINY_SETS = ["--set", "actor_hidden=16,16", "--set", "critic_hidden=16,16", "--set", "forward_hidden=16,16",
-             "--set", "inverse_hidden=16,16", "--set", "batch_size=8", "--set", "replay_size=64",
-             "--set", "babbling_episodes=1", "--set", "planning_episodes=2"]
 ENV = dict(os.environ, OMP_NUM_THREADS="1", PYTHONPATH=str(ROOT))
 
 

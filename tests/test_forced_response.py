@@ -7,7 +7,7 @@ import torch
 
 from apac_mj import suite
 from apac_mj.config import AgentConfig
-from apac_mj.kinematics import Sizes
+from apac_mj.layout import Sizes
 from apac_mj.run import forced_response as fr
 from apac_mj.suite.task_spec import Cues, TaskSpecError, load_task, parse_task
 

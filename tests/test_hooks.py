@@ -9,9 +9,7 @@ from apac_mj.recording.recording import EpisodeRecorder
 from apac_mj.run.rollout import FunctionHook, Hook, as_hooks
 from apac_mj.run.trainer import train
 
-from conftest import nets
-
-TINY = dict(nets(16, 16), batch_size=8, replay_size=64, babbling_episodes=1, planning_episodes=1)
+from conftest import TINY
 
 
 class Counting(Hook):

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 import torch
 
-from apac_mj.agent.integrator import KalmanIntegrator, PassThrough, build, integrate
+from apac_mj.agent.integrator import KalmanIntegrator, PassThrough, integrate
+from apac_mj.run.build import make_integrator
 from apac_mj.config import AgentConfig
 from apac_mj.types import Integrator
 
@@ -290,11 +291,13 @@ def test_the_base_class_gives_an_integrator_its_defaults():
 def test_the_kalman_table_reaches_the_filter():
     cfg = AgentConfig(integrator="kalman", params={"kalman": {"window": 7, "process_floor": 0.5,
                                                              "initial_process_var": 0.125}})
-    f = build(cfg, 2, obs_std=0.25)
+    f = make_integrator(cfg, 2, obs_std=0.25, device="cpu")
     assert isinstance(f, KalmanIntegrator) and (f.window, f.process_floor, f.initial_process_var, f.R) == (
         7, 0.5, 0.125, 0.0625)
-    assert isinstance(build(AgentConfig(), 2, obs_std=0.25), PassThrough)
+    assert isinstance(make_integrator(AgentConfig(), 2, obs_std=0.25, device="cpu"), PassThrough)
     with pytest.raises(ValueError, match=r"agent.kalman.window must be >= 1, got 0"):
         AgentConfig(params={"kalman": {"window": 0}})
+    from apac_mj import kinds
+
     with pytest.raises(ValueError, match=r"integrator must be one of \('pass_through', 'kalman'\), got 'ukf'"):
-        AgentConfig(integrator="ukf")
+        kinds.check(AgentConfig(integrator="ukf"))

@@ -138,6 +138,7 @@ def test_habit_formation_is_refused_for_kinds_that_do_not_arbitrate(kind):
 
 
 def test_use_habit_must_return_one_bool_per_member():
+    from apac_mj.agent.planner import InversePlanner
     from apac_mj.run.rollout import select_action
 
     class Wrong(Arbitrator):
@@ -151,9 +152,9 @@ def test_use_habit_must_return_one_bool_per_member():
     ctx = ArbitrationContext(torch.zeros(2, dtype=torch.long), torch.zeros(2, dtype=torch.long), torch.zeros(2),
                              state=torch.zeros(2, 6))
     with pytest.raises(ValueError, match=r"Wrong.use_habit must return \[E\] = \(2,\) bools"):
-        select_action(None, Wrong(), ctx, np.ones(2, dtype=bool), explore=False)
+        select_action(None, Wrong(), ctx, np.ones(2, dtype=bool), explore=False, planner=InversePlanner())
     with pytest.raises(ValueError, match=r"Bare.use_habit must return a Decision\(habit \[E\] bools, inputs\), got"):
-        select_action(None, Bare(), ctx, np.ones(2, dtype=bool), explore=False)
+        select_action(None, Bare(), ctx, np.ones(2, dtype=bool), explore=False, planner=InversePlanner())
 
 
 def test_kind_names_appear_only_in_the_registry_and_the_papers_table():
@@ -199,6 +200,7 @@ def test_the_actors_pass_runs_only_where_a_habit_acts(rule, habit, calls):
     """A kind that always plans (SPAC) is not charged a habit pass it never uses: the measured decision time of
     the paper's planner holds the inverse model's pass alone. The actions are those of the old code (the
     actor's where the habit acts, else the planner's)."""
+    from apac_mj.agent.planner import InversePlanner
     from apac_mj.run.rollout import select_action
 
     class Mixed(Arbitrator):
@@ -209,7 +211,7 @@ def test_the_actors_pass_runs_only_where_a_habit_acts(rule, habit, calls):
     assert arbitrator.needs_habit_action is False
     agent = _CountingAgent(3)
     ctx = ArbitrationContext(torch.full((3,), 200), torch.full((3,), 5), torch.zeros(3), state=torch.zeros(3, 6))
-    choice = select_action(agent, arbitrator, ctx, np.ones(3, dtype=bool), explore=False)
+    choice = select_action(agent, arbitrator, ctx, np.ones(3, dtype=bool), explore=False, planner=InversePlanner())
     assert agent.actor_calls == calls
     assert choice.decision.habit.tolist() == habit
     assert choice.action[:, 0].tolist() == [1.0 if h else 2.0 for h in habit]

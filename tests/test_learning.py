@@ -38,6 +38,8 @@ from conftest import nets
 #: episodes (for DDPG's exploration), and noise that large keeps any controller out of the 0.5 cm zone
 #: during these short runs whatever it has learned.
 PLANNING = dict(ou_sigma_initial=None)
+#: Not conftest's TINY: these checks must learn within a few dozen episodes, so 32-unit networks, minibatches
+#: of 32 and three babbling episodes (the default replay memory), with the planning checks' noise.
 SMALL = dict(nets(32, 32), batch_size=32, babbling_episodes=3, **PLANNING)
 
 

@@ -9,7 +9,7 @@ from conftest import TINY, nets
 
 from apac_mj.agent.agent import Agent
 from apac_mj.config import AgentConfig, TrainConfig
-from apac_mj.kinematics import Sizes
+from apac_mj.layout import Sizes
 from apac_mj.suite.task_spec import load_task
 from apac_mj.types import ARM, EXTRA, POSITIONS
 
@@ -29,11 +29,11 @@ def states(v: float, E: int = 2) -> torch.Tensor:
 
 def test_velocities_enter_the_networks_by_their_own_scale():
     a = agent()
-    x = a._state(states(250.0))
+    x = a.inputs.state(states(250.0))
     assert torch.allclose(x[:, EXTRA], torch.tensor([[0.5, -0.5]] * 2))  # 250 deg/s of a 500 deg/s scale
-    assert torch.allclose(x[:, POSITIONS], a._pos(states(250.0)[:, POSITIONS]))  # positions as on the paper's tasks
+    assert torch.allclose(x[:, POSITIONS], a.inputs.pos(states(250.0)[:, POSITIONS]))  # positions as on the paper's tasks
     assert x.abs().max() <= 1.0
-    raw = agent(normalize_inputs=False)._state(states(250.0))  # the paper's raw inputs: everything raw
+    raw = agent(normalize_inputs=False).inputs.state(states(250.0))  # the paper's raw inputs: everything raw
     assert torch.equal(raw, states(250.0))
 
 
@@ -53,7 +53,7 @@ def test_the_paper_tasks_keep_the_paper_inputs():
     assert a.forward_model.layers[0].in_features == 6 and a.forward_model.layers[-1].out_features == 4
     assert a.inverse_model.layers[0].in_features == 6 and a.actor.layers[0].in_features == 6
     s = states(0.0)[:, POSITIONS]
-    assert torch.equal(a._state(s), a._pos(s))
+    assert torch.equal(a.inputs.state(s), a.inputs.pos(s))
 
 
 def test_the_forward_loss_counts_the_velocity_error_in_half_planes_per_scale():

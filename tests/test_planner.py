@@ -21,7 +21,7 @@ from apac_mj.agent.agent import Agent
 from apac_mj.agent.arbitrators import VOC_EDGES, ValueOfComputationArbitrator
 from apac_mj.agent.planner import MPCPlanner
 from apac_mj.config import AgentConfig
-from apac_mj.kinematics import Sizes
+from apac_mj.layout import Sizes, StateLayout
 from apac_mj.rules import MPCParams
 from apac_mj.types import END, TARGET, ArbitrationContext, HabitProbe, StepInfo
 
@@ -37,6 +37,7 @@ class PointHand:
         self.cfg = dataclasses.replace(AgentConfig(), gamma=gamma)
         self.scale = scale
         self.sizes = Sizes(state_dim=8, extra_scale=(1.0, 1.0))  # two extra entries (joint velocities), no cue
+        self.layout = StateLayout(self.sizes)
 
     def to_action(self, u: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
         return u * self.scale
@@ -54,6 +55,11 @@ class PointHand:
 
     def value(self, s: torch.Tensor) -> torch.Tensor:
         return torch.zeros(s.shape[:-1])
+
+
+def mpc_agent(cfg: AgentConfig, seeds, **kw) -> Agent:
+    """An agent with the dynamics model its planner plans through (the builder's ``dynamics=``)."""
+    return Agent(cfg, seeds, dynamics=cfg.params["mpc"], **kw)
 
 
 def _ctx(state: torch.Tensor, zone_radius: float = 0.5) -> ArbitrationContext:
@@ -157,7 +163,7 @@ def test_bad_planning_settings_are_refused_before_anything_is_written(tmp_path):
 def test_the_real_agents_imagined_step_is_its_forward_model():
     """``Agent.imagine`` ([E, B] batched) equals ``predict_arm`` ([E]) for the arm, keeps the target, and on a
     torque task de-normalizes the predicted velocities."""
-    from apac_mj.kinematics import Sizes
+    from apac_mj.layout import Sizes
 
     for sizes in (Sizes(), Sizes(state_dim=8, extra_scale=(500.0, 500.0), action_bound=2.0, angle_actions=False)):
         agent = Agent(AgentConfig(**TINY), [0, 1], sizes=sizes)
@@ -168,9 +174,9 @@ def test_the_real_agents_imagined_step_is_its_forward_model():
         torch.testing.assert_close(nxt[:, 0, :4], agent.predict_arm(s, a))
         torch.testing.assert_close(nxt[:, :, TARGET], s[:, None, TARGET].expand(2, 3, 2))
         if sizes.extra_dim:
-            x = agent._state(s)
-            y = agent.forward_model(torch.cat([*agent._motion(x), agent._act(a)], -1)[:, None])[:, 0]
-            torch.testing.assert_close(nxt[:, 0, 6:] / 500.0, agent._forward_extra(y))
+            x = agent.inputs.state(s)
+            y = agent.forward_model(agent.inputs.model_input(x, a)[:, None])[:, 0]
+            torch.testing.assert_close(nxt[:, 0, 6:] / 500.0, agent.inputs.forward_extra(y))
 
 
 # -- the graded arbitrator -------------------------------------------------------------------------------
@@ -281,10 +287,10 @@ def test_the_dynamics_model_is_planned_through_and_leaves_the_other_networks_as_
     """A planning kind's agent has a residual dynamics model (built last: its other networks start as the
     paper's kinds' do); ``imagine`` steps it: the next normalized motion is the motion plus its output; one
     update lowers its loss on a batch of a linear system it can fit."""
-    from apac_mj.kinematics import Sizes
+    from apac_mj.layout import Sizes
 
     sizes = Sizes(state_dim=8, extra_scale=(500.0, 500.0), action_bound=2.0, angle_actions=False)
-    mpc = Agent(AgentConfig(kind="spac_mpc", **TINY), [0, 1], sizes=sizes)
+    mpc = mpc_agent(AgentConfig(kind="spac_mpc", **TINY), [0, 1], sizes=sizes)
     paper = Agent(AgentConfig(kind="spac", **TINY), [0, 1], sizes=sizes)
     assert paper.dynamics_model is None and mpc.dynamics_model is not None
     for name in ("actor", "critic", "forward_model", "inverse_model"):
@@ -294,10 +300,10 @@ def test_the_dynamics_model_is_planned_through_and_leaves_the_other_networks_as_
     s = torch.cat([torch.rand(2, 6, generator=g) * 30, torch.randn(2, 2, generator=g) * 300], 1)
     a = torch.rand(2, 2, generator=g) * 4 - 2
     nxt = mpc.imagine(s[:, None], a[:, None])[:, 0]
-    x = mpc._state(s)
+    x = mpc.inputs.state(s)
     change = mpc.dynamics_model(torch.cat([x[:, None, :4], x[:, None, 6:], a[:, None] / 2.0], -1))[:, 0]
-    torch.testing.assert_close(mpc._state(nxt)[:, :4], x[:, :4] + change[:, :4])
-    torch.testing.assert_close(mpc._state(nxt)[:, 6:], x[:, 6:] + change[:, 4:])
+    torch.testing.assert_close(mpc.inputs.state(nxt)[:, :4], x[:, :4] + change[:, :4])
+    torch.testing.assert_close(mpc.inputs.state(nxt)[:, 6:], x[:, 6:] + change[:, 4:])
     torch.testing.assert_close(nxt[:, 4:6], s[:, 4:6])
     batch = {"state": s[:, None].expand(2, 16, 8).clone(), "action": a[:, None].expand(2, 16, 2).clone(),
              "next_state": (s + 1.0)[:, None].expand(2, 16, 8).clone(), "reward": torch.zeros(2, 16),
@@ -311,12 +317,12 @@ def test_the_dynamics_model_is_planned_through_and_leaves_the_other_networks_as_
 def test_the_extra_model_steps_move_only_the_dynamics_model():
     """``mpc.model_updates`` extra steps train the dynamics model alone: after an update with 2 of them the
     other networks are where an update without them leaves them, the dynamics model is not."""
-    from apac_mj.kinematics import Sizes
+    from apac_mj.layout import Sizes
 
     sizes = Sizes(state_dim=8, extra_scale=(500.0, 500.0), action_bound=2.0, angle_actions=False)
 
     def updated(extra: int) -> Agent:
-        agent = Agent(AgentConfig(kind="spac_mpc", **TINY, batch_size=4, params={"mpc": {"model_updates": extra}}),
+        agent = mpc_agent(AgentConfig(kind="spac_mpc", **TINY, batch_size=4, params={"mpc": {"model_updates": extra}}),
                       [0, 1], sizes=sizes)
         g = torch.Generator().manual_seed(2)
         for _ in range(6):
@@ -344,10 +350,10 @@ def test_the_dynamics_model_has_its_own_weight_decay_and_old_runs_keep_theirs():
     (0: under 1e-3 its one-step error stalled at 1.04 cm / 47 deg/s on the stop task). A config written before
     the field (its ``mpc`` table without it) migrates to the decay its run had: the agent's ``weight_decay``."""
     from apac_mj.config import migrate, to_dict, train_config_from_dict, TrainConfig
-    from apac_mj.kinematics import Sizes
+    from apac_mj.layout import Sizes
 
     sizes = Sizes(state_dim=8, extra_scale=(500.0, 500.0), action_bound=2.0, angle_actions=False)
-    agent = Agent(AgentConfig(kind="spac_mpc", **TINY), [0, 1], sizes=sizes)
+    agent = mpc_agent(AgentConfig(kind="spac_mpc", **TINY), [0, 1], sizes=sizes)
     decay = {name: g["weight_decay"] for name, g in zip(agent.trained, agent.optimizer.param_groups)}
     assert decay == {"actor": 1e-3, "critic": 1e-3, "forward_model": 1e-3, "inverse_model": 1e-3,
                      "dynamics_model": 0.0}
@@ -364,11 +370,11 @@ def test_dynamics_heads_are_planned_through_by_their_mean_and_each_learns():
     with one); ``imagine`` steps their mean; the loss is the mean of each head's own error; an update lowers
     every head's error on a batch it can fit."""
     from apac_mj.agent.networks import DynamicsHeads
-    from apac_mj.kinematics import Sizes
+    from apac_mj.layout import Sizes
 
     sizes = Sizes(state_dim=8, extra_scale=(500.0, 500.0), action_bound=2.0, angle_actions=False)
-    one = Agent(AgentConfig(kind="spac_mpc", **TINY), [0, 1], sizes=sizes)
-    three = Agent(AgentConfig(kind="spac_mpc", **TINY, params={"mpc": {"model_heads": 3}}), [0, 1], sizes=sizes)
+    one = mpc_agent(AgentConfig(kind="spac_mpc", **TINY), [0, 1], sizes=sizes)
+    three = mpc_agent(AgentConfig(kind="spac_mpc", **TINY, params={"mpc": {"model_heads": 3}}), [0, 1], sizes=sizes)
     model = three.dynamics_model
     assert isinstance(model, DynamicsHeads) and len(model.heads) == 3
     for p, q in zip(one.dynamics_model.parameters(), model.heads[0].parameters()):
@@ -380,13 +386,13 @@ def test_dynamics_heads_are_planned_through_by_their_mean_and_each_learns():
     g = torch.Generator().manual_seed(1)
     s = torch.cat([torch.rand(2, 16, 6, generator=g) * 30, torch.randn(2, 16, 2, generator=g) * 300], -1)
     a = torch.rand(2, 16, 2, generator=g) * 4 - 2
-    x = three._state(s)
+    x = three.inputs.state(s)
     inputs = torch.cat([x[..., :4], x[..., 6:], a / 2.0], -1)
     each = model.each(inputs)
     nxt = three.imagine(s, a)
-    torch.testing.assert_close(three._state(nxt)[..., :4], x[..., :4] + each.mean(0)[..., :4])
+    torch.testing.assert_close(three.inputs.state(nxt)[..., :4], x[..., :4] + each.mean(0)[..., :4])
     s2 = s + 1.0
-    target = three._motion_x(three._state(s2)) - three._motion_x(x)
+    target = three.inputs.motion_x(three.inputs.state(s2)) - three.inputs.motion_x(x)
     per_head = (each - target).pow(2).mean((2, 3))
     torch.testing.assert_close(three._dynamics_loss(x, a, s2), per_head.mean(0))
     batch = {"state": s, "action": a, "next_state": s2, "reward": torch.zeros(2, 16), "done": torch.zeros(2, 16),

@@ -17,14 +17,13 @@ from torch.overrides import TorchFunctionMode
 
 from apac_mj.agent.agent import Agent
 from apac_mj.config import AgentConfig
-from apac_mj.kinds import arbitrator_for
-from apac_mj.run.rollout import EpisodeLoop, EpisodeState, to_host
+from apac_mj.run.build import episode_loop
+from apac_mj.run.rollout import EpisodeState, to_host
 from apac_mj.suite.vec_env import VecEnv
 
-from conftest import nets
+from conftest import TINY
 
 READS = {"cpu", "numpy", "item", "tolist", "__bool__", "__array__", "__float__", "__int__", "__index__"}
-SMALL = dict(nets(16, 16), replay_size=32, batch_size=8, planning_episodes=0)
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
 
 
@@ -46,9 +45,9 @@ class HostReads(TorchFunctionMode):
 
 def reads_per_step(E: int, device: str, kind: str, steps: int = 6) -> list[collections.Counter]:
     """Host reads of each of ``steps`` training steps (act, store, update, advance) of an E-member ensemble."""
-    agent = Agent(AgentConfig(kind=kind, **SMALL), list(range(E)), device=device)
-    loop = EpisodeLoop(agent, arbitrator_for(agent.cfg), VecEnv("changing_target", list(range(E))))
-    active, episode = np.ones(E, dtype=bool), np.full(E, 5)
+    agent = Agent(AgentConfig(kind=kind, **TINY), list(range(E)), device=device)
+    loop = episode_loop(agent, VecEnv("changing_target", list(range(E))))
+    active, episode = np.ones(E, dtype=bool), np.full(E, 5)  # past TINY's planning episodes: the kind's rule decides
     st = EpisodeState.fresh(E, agent.device)
     loop.start(st, active)
     out = []

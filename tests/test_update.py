@@ -16,9 +16,7 @@ from apac_mj.agent.agent import NETWORKS, TRAINED, Agent
 from apac_mj.config import AgentConfig
 from apac_mj.agent.networks import EnsembleCritic
 
-from conftest import nets
-
-SMALL = dict(nets(24, 16), replay_size=16, batch_size=8)
+from conftest import UNEVEN as SMALL  # test_agent imports SMALL from here
 
 
 def _batch(E: int, B: int, seed: int = 0) -> dict[str, torch.Tensor]:

@@ -20,24 +20,28 @@ tests/test_agent.py and stated in docs/agent.md.
 """
 from __future__ import annotations
 
-import contextlib
 import copy
 import dataclasses
-from typing import Sequence
+import functools
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 import torch
 from torch import nn
 
+from apac_mj.agent.inputs import NetworkInputs
+from apac_mj.agent.networks import (build_actor, build_critic, build_dynamics_model, build_forward_model,
+                                    build_inverse_model, dynamics_loss)
+from apac_mj.agent.noise import OUNoise
+from apac_mj.agent.precision import autocast, fp32_unless
 from apac_mj.agent.replay import EnsembleReplay
 from apac_mj.config import PRECISIONS, AgentConfig
-from apac_mj.kinematics import Geometry, Sizes
-from apac_mj.types import ARM, ELBOW, END, EXTRA, LOSSES, MOTION_EXTRA, POSITIONS, TARGET
-from apac_mj import kinds
-from apac_mj.agent.networks import (DynamicsHeads, build_actor, build_critic, build_dynamics_model,
-                                    build_forward_model, build_inverse_model)
-from apac_mj.rules import MPCParams
-from apac_mj.agent.noise import OUNoise
+from apac_mj.kinematics import Geometry
+from apac_mj.layout import ARM, ELBOW, END, Sizes, StateLayout
+from apac_mj.types import LOSSES
+
+if TYPE_CHECKING:
+    from apac_mj.rules import MPCParams
 
 NETWORKS = ("actor", "critic", "forward_model", "inverse_model", "target_actor", "target_critic")
 #: Networks trained by the optimizer, with the AgentConfig field of their learning rate.
@@ -56,38 +60,51 @@ class Agent:
     """E independent APAC agents (an :class:`apac_mj.types.Policy`): their proposals, forward model and TD
     error for the episode loop, their replay memory and :meth:`update` for the trainer.
 
+    ``dynamics``: the settings of a dynamics model to learn beside the paper's networks (``agent.mpc``, for a
+    planner that plans through one: ``PlannerKind.model``; the builder passes them); None: none.
     Construction switches on ``torch.set_flush_denormal`` for the process (docs/agent.md): tiny weights
     flush to zero, as in every run the numbers were measured with.
     """
 
-    def __init__(self, cfg: AgentConfig, seeds: Sequence[int], device: str = "cpu",
-                 precision: str = "fp32", geometry: Geometry | None = None, sizes: Sizes | None = None) -> None:
-        if len(seeds) < 1:
-            raise ValueError("Agent needs at least one seed")
-        if precision not in PRECISIONS:
-            raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}")
-        self.device = torch.device(device)
-        if self.device.type == "cuda" and not torch.cuda.is_available():
-            raise ValueError("device 'cuda' requested but CUDA is not available")
+    def __init__(self, cfg: AgentConfig, seeds: Sequence[int], device: str = "cpu", precision: str = "fp32",
+                 geometry: Geometry | None = None, sizes: Sizes | None = None,
+                 dynamics: MPCParams | None = None) -> None:
+        self.device = _checked_device(device, precision, seeds)
         torch.set_flush_denormal(True)
         #: The task's sizes (state and action dimensions, action bound), from its dm_env specs.
         self.sizes = sizes or Sizes()
+        #: The state's parts by name, and the habit's view of it.
+        self.layout = StateLayout(self.sizes)
         self.state_dim, self.action_dim = self.sizes.state_dim, self.sizes.action_dim
         cfg = in_action_units(cfg, self.sizes)
         self.cfg, self.seeds, self.precision = cfg, [int(s) for s in seeds], precision
         self.geometry = geometry or Geometry()
         self.plane_scale = _plane_scale(cfg, self.geometry)
         self.E = len(self.seeds)
+        #: ``with self._precision(net):`` inside the update: fp32 for a network ``bf16_networks`` leaves out.
+        self._precision = functools.partial(fp32_unless, device_type=self.device.type, precision=precision,
+                                            networks=cfg.bf16_networks)
+        #: How the networks read the state and the action (network units).
+        self.inputs = NetworkInputs(self.layout, cfg, self.plane_scale, self.device)
         gens = [member_generators(s) for s in self.seeds]
-        init = [g[0] for g in gens]
-        S, A = self.state_dim, self.action_dim
+        decay = self._build_networks([g[0] for g in gens], dynamics)
+        self.optimizer, self._views = _member_adam(
+            {n: (getattr(self, n), lr, decay[n]) for n, lr in self.trained.items()}, self.E)
+        self.replay = EnsembleReplay([g[1] for g in gens], cfg.replay_size, self.state_dim, self.action_dim,
+                                     device=self.device)
+        self.noise = OUNoise([g[2] for g in gens], dim=self.action_dim, theta=cfg.ou_theta, sigma=cfg.ou_sigma,
+                             device=self.device)
+        self._soft_pairs = [(t.detach(), o.detach()) for net, tnet in
+                            ((self.actor, self.target_actor), (self.critic, self.target_critic))
+                            for t, o in zip(tnet.parameters(), net.parameters())]
+        self._soft_views = [(t.unbind(0), o.unbind(0)) for t, o in self._soft_pairs]
+
+    def _build_networks(self, init: list[torch.Generator], dynamics: MPCParams | None) -> dict[str, float]:
+        """The networks, initialized from the members' ``init`` generators in a fixed order (the dynamics model
+        last, so that the others start as in every kind); returns each trained network's L2 weight decay."""
+        cfg, S, A, X = self.cfg, self.state_dim, self.action_dim, self.sizes.motion_dim
         self.actor = build_actor(cfg.actor_hidden, init, S, A).to(self.device)
         self.critic = build_critic(cfg.critic_hidden, init, cfg.critic_form, S, A).to(self.device)
-        X = self.sizes.motion_dim
-        #: Scale of each extra state entry (its observation spec's ``scale``, e.g. 500 deg/s): networks read extra / scale.
-        self.extra_scale = torch.tensor(self.sizes.extra_scale, dtype=torch.float32, device=self.device)
-        #: The scales of the motion's extra entries (the internal models' extra inputs and outputs).
-        self.motion_scale = self.extra_scale[:X]
         self.forward_model = build_forward_model(cfg.forward_hidden, self.plane_scale, init, A, X).to(self.device)
         self.inverse_model = build_inverse_model(cfg.inverse_hidden, init, A, X).to(self.device)
         self.target_actor = _frozen_copy(self.actor)
@@ -95,72 +112,22 @@ class Agent:
         #: The networks the optimizer trains, with their learning rates; and every network a checkpoint keeps.
         self.trained = {n: getattr(cfg, lr) for n, lr in TRAINED.items()}
         self.networks: tuple[str, ...] = NETWORKS
-        #: The planning system's dynamics model (kinds that plan through a model, ``agent.mpc``; built last, so
-        #: that the other networks are initialized as in every other kind); None: the kind has none.
+        #: The planning system's dynamics model (``dynamics``); None: the kind has none.
         self.dynamics_model: nn.Module | None = None
         #: Extra Adam steps of the dynamics model alone after every update (``mpc.model_updates``; 0: none).
         self.model_updates = 0
-        #: L2 weight decay per trained network: the paper's ``weight_decay`` on its own networks.
-        decay = {n: cfg.weight_decay for n in self.trained}
-        if kinds.get(cfg.kind).planner == "mpc":
-            mpc = cfg.params[MPCParams.table]
-            self.model_updates = mpc.model_updates
-            self.dynamics_model = build_dynamics_model(mpc.model_hidden, init, A, X, mpc.model_heads).to(self.device)
-            self.trained["dynamics_model"] = mpc.model_lr
-            decay["dynamics_model"] = mpc.model_weight_decay
-            self.networks = (*NETWORKS, "dynamics_model")
-        self.optimizer, self._views = _member_adam(
-            {n: (getattr(self, n), lr, decay[n]) for n, lr in self.trained.items()}, self.E)
-        self.replay = EnsembleReplay([g[1] for g in gens], cfg.replay_size, S, A, device=self.device)
-        self.noise = OUNoise([g[2] for g in gens], dim=A, theta=cfg.ou_theta, sigma=cfg.ou_sigma, device=self.device)
-        self._soft_pairs = [(t.detach(), o.detach()) for net, tnet in
-                            ((self.actor, self.target_actor), (self.critic, self.target_critic))
-                            for t, o in zip(tnet.parameters(), net.parameters())]
-        self._soft_views = [(t.unbind(0), o.unbind(0)) for t, o in self._soft_pairs]
+        #: The losses :meth:`update` reports, in the order of metrics.parquet's ``<name>_loss`` columns.
+        self.loss_names: tuple[str, ...] = LOSSES
+        decay = {n: cfg.weight_decay for n in self.trained}  # the paper's weight decay on its own networks
+        if dynamics is not None:
+            self.model_updates = dynamics.model_updates
+            self.dynamics_model = build_dynamics_model(dynamics.model_hidden, init, A, X,
+                                                       dynamics.model_heads).to(self.device)
+            self.trained["dynamics_model"], decay["dynamics_model"] = dynamics.model_lr, dynamics.model_weight_decay
+            self.networks, self.loss_names = (*NETWORKS, "dynamics_model"), (*LOSSES, "dynamics")
+        return decay
 
-    # -- inputs and outputs ------------------------------------------------------
-    def _pos(self, x: torch.Tensor) -> torch.Tensor:
-        """Network input for positions (cm); identity unless ``normalize_inputs``."""
-        if not self.cfg.normalize_inputs:
-            return x
-        half = self.plane_scale / 2
-        return (x - half) / half
-
-    def _state(self, s: torch.Tensor) -> torch.Tensor:
-        """Network input for a state ``[..., 6 + extra]``: the positions as :meth:`_pos`, each extra entry (e.g.
-        joint velocities) divided by its own scale (``Sizes.extra_scale``); identity unless ``normalize_inputs``.
-        On the paper's tasks (no extra) exactly :meth:`_pos`."""
-        if not self.sizes.extra_dim or not self.cfg.normalize_inputs:
-            return self._pos(s)
-        return torch.cat([self._pos(s[..., POSITIONS]), s[..., EXTRA] / self.extra_scale], -1)
-
-    def _motion(self, x: torch.Tensor) -> list[torch.Tensor]:
-        """The arm's motion as the internal models read it, from a network-input state ``x``: ``[arm]``, or
-        ``[arm, extra]`` where the task observes more (the joint velocities: a Markov state under dynamics)."""
-        return [x[..., ARM], x[..., self.sizes.motion]] if self.sizes.motion_dim else [x[..., ARM]]
-
-    def _habit(self, x: torch.Tensor) -> torch.Tensor:
-        """What the habit (actor and critic) reads of a network-input state ``x``: all of it, or on a cued task
-        (``Sizes.cue_dim``) the target's position zeroed: the habit learns cue -> movement; the planner alone is
-        told where the cued target is."""
-        if not self.sizes.cue_dim:
-            return x
-        return torch.cat([x[..., :TARGET.start], torch.zeros_like(x[..., TARGET]), x[..., TARGET.stop:]], -1)
-
-    def _inverse_input(self, x: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
-        """The inverse model's input: the motion (:meth:`_motion`) and the hand's goal ``[..., 2]`` (network
-        units): ``[end, elbow, goal]`` on the paper's tasks."""
-        return torch.cat([*self._motion(x), goal], -1)
-
-    def _forward_extra(self, y: torch.Tensor) -> torch.Tensor:
-        """The forward model's extra outputs ``y[..., MOTION_EXTRA]`` (sigmoid x plane_scale) as normalized extras, in
-        ``[-2, 2]`` (the observed entries divided by their scale; the arm may exceed the scale)."""
-        return 2.0 * (2.0 * y[..., MOTION_EXTRA] / self.plane_scale - 1.0)
-
-    def _act(self, a: torch.Tensor) -> torch.Tensor:
-        """Network input for actions (degrees); identity unless ``normalize_inputs``."""
-        return a / self.cfg.action_scale if self.cfg.normalize_inputs else a
-
+    # -- actions -----------------------------------------------------------------
     def feasible_range(self, s: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Joint-angle changes ``(low, high)`` ``[..., 2]`` that keep both joints in range from the pose in
         ``s`` (raw cm: [end, elbow, ...]); ``±action_scale`` for unbounded joints and for actions that are
@@ -186,18 +153,6 @@ class Agent:
         lo, hi = self.feasible_range(s)
         return torch.minimum(torch.maximum(a, lo), hi)
 
-    def _autocast(self) -> contextlib.AbstractContextManager:
-        if self.precision == "bf16":
-            return torch.autocast(self.device.type, dtype=torch.bfloat16)
-        return contextlib.nullcontext()
-
-    def _precision(self, net: str) -> contextlib.AbstractContextManager:
-        """Inside the update's autocast: fp32 for ``net`` (a target network counts as its online one) when
-        the update runs in bf16 but ``cfg.bf16_networks`` leaves it out; else no change."""
-        if self.precision == "bf16" and net not in self.cfg.bf16_networks:
-            return torch.autocast(self.device.type, enabled=False)
-        return contextlib.nullcontext()
-
     def _check(self, name: str, x: torch.Tensor, dim: int) -> torch.Tensor:
         x = torch.as_tensor(x, dtype=torch.float32, device=self.device)
         if tuple(x.shape) != (self.E, dim):
@@ -207,78 +162,48 @@ class Agent:
     # -- proposals -------------------------------------------------------------
     @torch.no_grad()
     def actor_action(self, state: torch.Tensor) -> torch.Tensor:
-        """Habit proposal ``pi(s)``: state ``[E, 6 + extra] -> [E,2]`` degrees (no noise)."""
+        """Habit proposal ``pi(s)``: state ``[E, S] -> [E, A]`` (no noise)."""
         s = self._check("state", state, self.state_dim)
         actor = self.target_actor if self.cfg.act_with_target_actor else self.actor
-        return self.to_action(actor(self._habit(self._state(s))[:, None])[:, 0], s)
+        return self.to_action(actor(self.inputs.habit(self.inputs.state(s))[:, None])[:, 0], s)
 
     @torch.no_grad()
     def inverse_action(self, state: torch.Tensor) -> torch.Tensor:
-        """Planning proposal: the inverse model with the target as the hand's goal, from the state's positions
-        ``[end, elbow, target]`` (``POSITIONS``) and its extra entries (the joint velocities, where observed):
-        ``[E, 6 + extra] -> [E,2]`` degrees (no noise)."""
+        """Planning proposal: the inverse model with the target as the hand's goal, from the state's motion
+        (:meth:`StateLayout.motion_parts`): ``[E, S] -> [E, A]`` (no noise)."""
         s = self._check("state", state, self.state_dim)
-        return self.to_action(self.inverse_model(self._plan_input(self._state(s))[:, None])[:, 0], s)
-
-    def _plan_input(self, x: torch.Tensor) -> torch.Tensor:
-        """The inverse model's input at action time: the target in the place of the next hand position."""
-        return self._inverse_input(x, x[..., TARGET])
+        return self.to_action(self.inverse_model(self.inputs.plan_input(self.inputs.state(s))[:, None])[:, 0], s)
 
     @torch.no_grad()
     def predict_arm(self, state: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
-        """Forward model: state ``[E, 6 + extra]`` (it reads the arm ``[end, elbow]`` and the extra entries, e.g.
-        joint velocities) + action ``[E,2]`` -> next ``[end, elbow]`` ``[E,4]`` (cm)."""
-        x = self._state(self._check("state", state, self.state_dim))
-        a = self._act(self._check("action", action, self.action_dim))
-        return self.forward_model(torch.cat([*self._motion(x), a], -1)[:, None])[:, 0, ARM]
+        """Forward model: state ``[E, S]`` (it reads the motion) + action ``[E, A]`` -> next ``[end, elbow]``
+        ``[E, 4]`` (cm)."""
+        x = self.inputs.state(self._check("state", state, self.state_dim))
+        a = self._check("action", action, self.action_dim)
+        return self.forward_model(self.inputs.model_input(x, a)[:, None])[:, 0, ARM]
 
     # -- the learned model, batched for planning ([E, B, ...]: B candidates per member) -------------------
     @torch.no_grad()
     def imagine(self, state: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
-        """The next state ``[E, B, 6 + extra]`` (raw units) the model predicts from ``state`` and the executable
-        ``action`` ``[E, B, 2]``: its arm and extra entries, the target unchanged. The model is the dynamics
+        """The next state ``[E, B, S]`` (raw units) the model predicts from ``state`` and the executable
+        ``action`` ``[E, B, A]``: its arm and motion, the target and cue unchanged. The model is the dynamics
         model where the kind has one, else the paper's forward model."""
-        x = self._state(state)
+        x = self.inputs.state(state)
         if self.dynamics_model is not None:
-            return self._from_motion(self._motion_x(x) + self.dynamics_model(
-                torch.cat([*self._motion(x), self._act(action)], -1)), state)
-        y = self.forward_model(torch.cat([*self._motion(x), self._act(action)], -1))
-        parts = [y[..., ARM], state[..., TARGET]]
-        if self.sizes.motion_dim:
-            parts.append(self._forward_extra(y) * self.motion_scale)
-        if self.sizes.cue_dim:  # the cue stays as it is
-            parts.append(state[..., self.sizes.cue])
-        return torch.cat(parts, -1)
-
-    def _motion_x(self, x: torch.Tensor) -> torch.Tensor:
-        """The motion ``[..., 4 + extra]`` of a network-input state ``x`` (normalized)."""
-        return torch.cat(self._motion(x), -1)
-
-    def _from_motion(self, m: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
-        """A raw state ``[..., 6 + extra]`` from a normalized motion ``m`` and ``state``'s target."""
-        arm = m[..., ARM]
-        if self.cfg.normalize_inputs:
-            half = self.plane_scale / 2
-            arm = arm * half + half
-        parts = [arm, state[..., TARGET]]
-        if self.sizes.motion_dim:
-            extra = m[..., MOTION_EXTRA]
-            parts.append(extra * self.motion_scale if self.cfg.normalize_inputs else extra)
-        if self.sizes.cue_dim:
-            parts.append(state[..., self.sizes.cue])
-        return torch.cat(parts, -1)
+            change = self.dynamics_model(self.inputs.model_input(x, action))
+            return self.inputs.from_motion(self.inputs.motion_x(x) + change, state)
+        return self.inputs.from_forward(self.forward_model(self.inputs.model_input(x, action)), state)
 
     @torch.no_grad()
     def habit_u(self, state: torch.Tensor) -> torch.Tensor:
-        """The actor's tanh output ``[E, B, 2]`` in ``state`` ``[E, B, 6 + extra]`` (:meth:`to_action` makes it
-        an action)."""
-        return self.actor(self._habit(self._state(state)))
+        """The actor's tanh output ``[E, B, A]`` in ``state`` ``[E, B, S]`` (:meth:`to_action` makes it an action)."""
+        return self.actor(self.inputs.habit(self.inputs.state(state)))
 
     @torch.no_grad()
     def value(self, state: torch.Tensor) -> torch.Tensor:
-        """The critic's ``Q(s, pi(s))`` ``[E, B]`` (cm of return) in ``state`` ``[E, B, 6 + extra]``."""
-        x = self._habit(self._state(state))
-        return self.critic(x, self._act(self.to_action(self.actor(x), state)))
+        """The critic's ``Q(s, pi(s))`` ``[E, B]`` (cm of return) in ``state`` ``[E, B, S]``."""
+        x = self.inputs.habit(self.inputs.state(state))
+        return self.critic(x, self.inputs.act(self.to_action(self.actor(x), state)))
 
     @torch.no_grad()
     def td_error(self, s: torch.Tensor, a: torch.Tensor, r: torch.Tensor, s2: torch.Tensor,
@@ -288,15 +213,15 @@ class Agent:
         a = self._check("a", a, self.action_dim)[:, None]
         r, done = self._check("r", torch.as_tensor(r)[:, None], 1), self._check("done", torch.as_tensor(done)[:, None], 1)
         y = self._target(r, s2, done)
-        return (y - self.critic(self._habit(self._state(s)), self._act(a)))[:, 0]
+        return (y - self.critic(self.inputs.habit(self.inputs.state(s)), self.inputs.act(a)))[:, 0]
 
     def _target(self, r: torch.Tensor, s2: torch.Tensor, done: torch.Tensor) -> torch.Tensor:
         """TD target ``r + gamma (1 - done) Q'(s2, pi'(s2))``; ``[E,B]`` (s2 raw cm)."""
-        x2 = self._habit(self._state(s2))
+        x2 = self.inputs.habit(self.inputs.state(s2))
         with self._precision("actor"):
             a2 = self.to_action(self.target_actor(x2).float(), s2)
         with self._precision("critic"):
-            q2 = self.target_critic(x2, self._act(a2)).float()
+            q2 = self.target_critic(x2, self.inputs.act(a2)).float()
         return r + self.cfg.gamma * (1.0 - done) * q2
 
     # -- learning ----------------------------------------------------------------
@@ -310,7 +235,7 @@ class Agent:
         members = [k for k in range(self.E) if act[k] and self.replay.count[k] >= 1]
         nan = torch.full((self.E,), float("nan"), device=self.device)
         if not members:
-            return {name: nan.clone() for name in LOSSES}
+            return {name: nan.clone() for name in self.loss_names}
         losses = self.gradients(self.replay.sample(self.cfg.batch_size, members), members)
         self.optimizer.step()
         self._soft_update(members)
@@ -328,8 +253,8 @@ class Agent:
                 for v in vs:
                     v.grad = None
         self.dynamics_model.zero_grad(set_to_none=True)
-        with self._autocast():
-            loss = self._dynamics_loss(self._state(batch["state"]), batch["action"], batch["next_state"])
+        with autocast(self.device.type, self.precision):
+            loss = self._dynamics_loss(self.inputs.state(batch["state"]), batch["action"], batch["next_state"])
         weight = torch.zeros(self.E, device=self.device)
         weight[list(members)] = 1.0
         (loss * weight).sum().backward()
@@ -340,14 +265,10 @@ class Agent:
         self.optimizer.step()
 
     def _dynamics_loss(self, x: torch.Tensor, a: torch.Tensor, s2: torch.Tensor) -> torch.Tensor:
-        """The dynamics model's error ``[E]`` on the motion's change (normalized: every entry of order 1) from
-        the network-input state ``x`` and the action ``a`` to the raw next state ``s2``; with several heads, the
-        mean of each head's own error (each head learns to predict, not only their mean)."""
-        inputs, model = torch.cat([*self._motion(x), self._act(a)], -1), self.dynamics_model
-        target = self._motion_x(self._state(s2)) - self._motion_x(x)
-        if isinstance(model, DynamicsHeads):
-            return (model.each(inputs).float() - target).pow(2).mean((2, 3)).mean(0)
-        return (model(inputs).float() - target).pow(2).mean((1, 2))
+        """The dynamics model's error ``[E]`` (:func:`~apac_mj.agent.networks.dynamics_loss`) from the
+        network-unit state ``x`` and the action ``a`` to the raw next state ``s2``."""
+        target = self.inputs.motion_x(self.inputs.state(s2)) - self.inputs.motion_x(x)
+        return dynamics_loss(self.dynamics_model, self.inputs.model_input(x, a), target)
 
     def gradients(self, batch: dict[str, torch.Tensor], members: Sequence[int]) -> dict[str, torch.Tensor]:
         """Losses ``[E]`` on ``batch`` and, by autograd, their gradients: each network's ``.grad``
@@ -355,7 +276,7 @@ class Agent:
         others, so Adam leaves them untouched)."""
         for net in self.trained:
             getattr(self, net).zero_grad(set_to_none=True)
-        with self._autocast():
+        with autocast(self.device.type, self.precision):
             losses = self.losses(batch)
         weight = torch.zeros(self.E, device=self.device)
         weight[members] = 1.0
@@ -374,31 +295,31 @@ class Agent:
 
         Each loss reaches only its own network's weights: the actor's loss differentiates
         Q(s, pi(s)) through the critic's current weights as constants (``detach``)."""
-        cfg = self.cfg
+        cfg, inputs = self.cfg, self.inputs
         s, a, s2 = b["state"], b["action"], b["next_state"]
         with torch.no_grad():
             y = self._target(b["reward"], s2, b["done"])
-        x = self._state(s)
-        h = self._habit(x)  # the habit's view (on a cued task: the cue, not the target's position)
+        x = inputs.state(s)
+        h = inputs.habit(x)  # the habit's view (on a cued task: the cue, not the target's position)
         with self._precision("critic"):
-            q = self.critic(h, self._act(a)).float()
+            q = self.critic(h, inputs.act(a)).float()
         with self._precision("actor"):
             u = self.actor(h).float()
         pi = self.to_action(u, s)
         with self._precision("critic"):
-            actor_loss = -self.critic(h, self._act(pi), detach=True).float().mean(1)
+            actor_loss = -self.critic(h, inputs.act(pi), detach=True).float().mean(1)
         if cfg.habit_distillation_weight > 0:  # kinds that arbitrate only (apac_mj.kinds.check)
             with torch.no_grad(), self._precision("inverse_model"):
-                plan = self.to_action(self.inverse_model(self._plan_input(x)).float(), s)
+                plan = self.to_action(self.inverse_model(inputs.plan_input(x)).float(), s)
             distance = ((pi - plan) / cfg.action_scale).pow(2).sum(-1).mean(1)
             actor_loss = actor_loss + cfg.habit_distillation_weight * distance
         if cfg.feasibility_weight > 0:
             excess = (pi - self.executable(pi, s)) / cfg.action_scale
             actor_loss = actor_loss + cfg.feasibility_weight * excess.pow(2).sum(-1).mean(1)
         with self._precision("forward_model"):
-            arm_next = self.forward_model(torch.cat([*self._motion(x), self._act(a)], -1)).float()
+            arm_next = self.forward_model(inputs.model_input(x, a)).float()
         with self._precision("inverse_model"):
-            u_inv = self.inverse_model(self._inverse_input(x, self._pos(s2[..., END]))).float()
+            u_inv = self.inverse_model(inputs.inverse_input(x, inputs.pos(s2[..., END]))).float()
         out = {"critic": (y - q).pow(2).mean(1),
                "actor": actor_loss,
                "forward": self._forward_error(arm_next, s2).pow(2).mean((1, 2)),
@@ -408,14 +329,15 @@ class Agent:
         return out
 
     def _forward_error(self, y: torch.Tensor, s2: torch.Tensor) -> torch.Tensor:
-        """The forward model's error per output ``[E,B,4 + extra]``: the arm in cm; each extra entry normalized
+        """The forward model's error per output ``[E,B,4 + motion]``: the arm in cm; each motion entry normalized
         by its scale and weighed as half the plane's width (cm), so an error of one scale (500 deg/s) counts
         as much as half the plane."""
         err = y[..., ARM] - s2[..., ARM]
-        if not self.sizes.motion_dim:
+        if not self.layout.motion_dim:
             return err
         half = self.plane_scale / 2
-        return torch.cat([err, (self._forward_extra(y) - s2[..., self.sizes.motion] / self.motion_scale) * half], -1)
+        motion = s2[..., self.layout.motion] / self.inputs.motion_scale
+        return torch.cat([err, (self.inputs.forward_extra(y) - motion) * half], -1)
 
     @torch.no_grad()
     def _soft_update(self, members: list[int]) -> None:
@@ -450,6 +372,18 @@ class Agent:
         self.optimizer.load_state_dict(d["optimizer"])
         self.replay.load_state_dict(d["replay"])
         self.noise.load_state_dict(d["noise"])
+
+
+def _checked_device(device: str, precision: str, seeds: Sequence[int]) -> torch.device:
+    """The agent's device, with its seeds and ``precision`` checked (a clear error where CUDA is missing)."""
+    if len(seeds) < 1:
+        raise ValueError("Agent needs at least one seed")
+    if precision not in PRECISIONS:
+        raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}")
+    out = torch.device(device)
+    if out.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError("device 'cuda' requested but CUDA is not available")
+    return out
 
 
 def _member_adam(nets: dict[str, tuple[nn.Module, float, float]], E: int,

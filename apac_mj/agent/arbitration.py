@@ -62,6 +62,8 @@ class AlwaysPlan(Arbitrator):
 class DeltaArbitrator(Arbitrator):
     """APAC's rule: planning phase, then the habit on the first steps and where the last delta is small."""
 
+    reads_last_delta = True
+
     def __init__(self, cfg: AgentConfig) -> None:
         self.planning_episodes = cfg.planning_episodes
         self.habit_first_steps = cfg.habit_first_steps

@@ -48,21 +48,17 @@ Both subclass :class:`apac_mj.types.Integrator` (``reset``, ``update``,
 ``state_dict``, ``load_state_dict``, ``adapt``) and add ``variance``; the
 estimate itself is carried by the caller (``prior_state`` in, next estimate
 out). The Kalman filter's parameters are the table ``agent.kalman``
-(:class:`apac_mj.rules.KalmanParams`).
+(:class:`apac_mj.rules.KalmanParams`). Both are registered integrators (:mod:`apac_mj.systems`:
+``"pass_through"`` and ``"kalman"``), chosen by ``AgentConfig.integrator``.
 """
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 
-from apac_mj.rules import INTEGRATORS, KalmanParams
 from apac_mj.types import ARM, POSITION_DIM, TARGET, Integrator
-
-if TYPE_CHECKING:
-    from apac_mj.config import AgentConfig
 
 
 def integrate(observed: torch.Tensor, predicted: torch.Tensor, vision: torch.Tensor) -> torch.Tensor:
@@ -224,15 +220,3 @@ class KalmanIntegrator(Integrator):
             loaded[key] = t.to(self.device, getattr(self, key).dtype).clone()
         for key, t in loaded.items():
             setattr(self, key, t)
-
-
-def build(cfg: AgentConfig, E: int, obs_std: float, device: torch.device | str = "cpu") -> Integrator:
-    """The integrator ``cfg.integrator`` (a name of :data:`apac_mj.rules.INTEGRATORS`) for ``E`` members;
-    ``obs_std``: the task's observation noise (cm, ``TaskSpec.observation_noise_std``), the Kalman filter's ``R``."""
-    if cfg.integrator == KalmanIntegrator.name:
-        params: KalmanParams = cfg.params[KalmanParams.table]
-        return KalmanIntegrator(E, obs_std, process_floor=params.process_floor, window=params.window,
-                                initial_process_var=params.initial_process_var, device=device)
-    if cfg.integrator == PassThrough.name:
-        return PassThrough(E, device)
-    raise ValueError(f"integrator must be one of {sorted(INTEGRATORS)}, got {cfg.integrator!r}")

@@ -16,6 +16,8 @@ from typing import Callable, Sequence
 import torch
 from torch import nn
 
+from apac_mj.layout import POSITION_DIM
+
 #: Output-layer init bound (DDPG).
 FINAL_INIT = 3e-3
 
@@ -132,14 +134,15 @@ class EnsembleCritic(nn.Module):
         return self.out(h, detach).squeeze(-1)
 
 
-def build_actor(hidden: Sequence[int], gens: Sequence[torch.Generator], state_dim: int = 6,
+def build_actor(hidden: Sequence[int], gens: Sequence[torch.Generator], state_dim: int = POSITION_DIM,
                 action_dim: int = 2) -> EnsembleMLP:
     """Actor pi(s): state (6, the paper's; more if the task observes more) -> relu -> relu -> action (2) x tanh,
     in [-1, 1] (the agent maps it to the action's units)."""
     return EnsembleMLP([state_dim, *hidden, action_dim], "relu", "tanh", 1.0, gens)
 
 
-def build_critic(hidden: Sequence[int], gens: Sequence[torch.Generator], form: str = "concat", state_dim: int = 6,
+def build_critic(hidden: Sequence[int], gens: Sequence[torch.Generator], form: str = "concat",
+                 state_dim: int = POSITION_DIM,
                  action_dim: int = 2) -> EnsembleCritic:
     """Critic Q(s, a): state (6), action (2) -> scalar."""
     return EnsembleCritic(state_dim, action_dim, hidden, gens, form)
@@ -190,4 +193,13 @@ def build_inverse_model(hidden: Sequence[int], gens: Sequence[torch.Generator], 
                         extra_dim: int = 0) -> EnsembleMLP:
     """Inverse model: [end_t, elbow_t, extra_t, end_{t+1}] (6 + extra; the paper's 6) -> relu -> relu ->
     action (2) x tanh, in [-1, 1]."""
-    return EnsembleMLP([6 + extra_dim, *hidden, action_dim], "relu", "tanh", 1.0, gens)
+    return EnsembleMLP([POSITION_DIM + extra_dim, *hidden, action_dim], "relu", "tanh", 1.0, gens)
+
+
+def dynamics_loss(model: nn.Module, inputs: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """The dynamics model's error ``[E]`` on the motion's change ``target`` (normalized: every entry of order 1)
+    from its ``inputs``; with several heads (:class:`DynamicsHeads`), the mean of each head's own error (each
+    head learns to predict, not only their mean)."""
+    if isinstance(model, DynamicsHeads):
+        return (model.each(inputs).float() - target).pow(2).mean((2, 3)).mean(0)
+    return (model(inputs).float() - target).pow(2).mean((1, 2))

@@ -1,5 +1,6 @@
 """The planning system's proposals: the paper's inverse model, and model-predictive control through the learned
-forward model (beyond the paper; issue 28, docs/agent.md "Planning through the model").
+forward model (beyond the paper; issue 28, docs/agent.md "Planning through the model"). Both are registered
+planners (:mod:`apac_mj.systems`: ``"inverse"`` and ``"mpc"``); an agent kind names its own.
 
 :class:`InversePlanner` is the paper's planner: one query of the inverse model with the target as the hand's
 goal, re-asked every step. :class:`MPCPlanner` plans ``horizon`` steps ahead through the forward model
@@ -20,13 +21,13 @@ plans alike in an ensemble and alone.
 """
 from __future__ import annotations
 
-from typing import Any, Sequence
+from typing import Sequence
 
 import numpy as np
 import torch
 
 from apac_mj.rules import MPCParams
-from apac_mj.types import END, TARGET, ArbitrationContext, HabitProbe, Planner, Policy, Proposal
+from apac_mj.types import END, TARGET, ArbitrationContext, HabitProbe, Planner, Proposal, WorldModel
 
 #: The spawn key of the planner's random streams (independent of the agent's init, replay and noise streams).
 STREAM = 28
@@ -35,7 +36,7 @@ STREAM = 28
 class InversePlanner(Planner):
     """The paper's planning system: the inverse model's proposal, one query per step."""
 
-    def propose(self, agent: Policy, ctx: ArbitrationContext, iterations: torch.Tensor) -> Proposal:
+    def propose(self, agent: WorldModel, ctx: ArbitrationContext, iterations: torch.Tensor) -> Proposal:
         return Proposal(agent.inverse_action(ctx.state), (iterations > 0).long())
 
 
@@ -61,10 +62,10 @@ class MPCPlanner(Planner):
     def reset(self, mask: np.ndarray) -> None:
         self.mean[torch.as_tensor(np.asarray(mask, dtype=bool))] = 0.0
 
-    def state_dict(self) -> dict[str, Any]:
+    def state_dict(self) -> dict[str, object]:
         return {"mean": self.mean.clone(), "generators": [g.get_state() for g in self.generators]}
 
-    def load_state_dict(self, d: dict[str, Any]) -> None:
+    def load_state_dict(self, d: dict[str, object]) -> None:
         if not d:
             return
         mean = torch.as_tensor(d["mean"])
@@ -76,7 +77,7 @@ class MPCPlanner(Planner):
             g.set_state(state)
 
     # -- imagination --------------------------------------------------------------------------
-    def rollout(self, agent: Any, state: torch.Tensor, u: torch.Tensor | None = None,
+    def rollout(self, agent: WorldModel, state: torch.Tensor, u: torch.Tensor | None = None,
                 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Imagine sequences from ``state`` ``[E, S]``: ``u`` ``[E, B, H, A]`` (tanh units), or the habit's
         (None: the actor acts at each imagined state). Returns the values ``[E, B]`` (cm of return), the
@@ -93,32 +94,32 @@ class MPCPlanner(Planner):
             s = agent.imagine(s, agent.executable(agent.to_action(u_t, s), s))
             distance = torch.linalg.vector_norm(s[..., END] - s[..., TARGET], dim=-1)
             value = value - gamma ** t * alive * distance
-            alive = alive * (1.0 - self._arrived(s, distance, agent.sizes.motion))
+            alive = alive * (1.0 - self._arrived(s, distance, agent.layout.motion))
             hands.append(s[..., END])
         value = value + gamma ** H * alive * agent.value(s)
         return value, torch.stack(hands, 2), torch.stack(taken, 2)
 
     def _arrived(self, s: torch.Tensor, distance: torch.Tensor, motion: slice) -> torch.Tensor:
         """Where the imagined hand arrived: in the zone and (a stop criterion) every joint speed, the state's
-        ``motion`` entries (``Sizes.motion``), at most ``stop_speed``."""
+        ``motion`` entries (``StateLayout.motion``), at most ``stop_speed``."""
         arrived = distance <= self.zone_radius
         if self.stop_speed is not None:
             arrived = arrived & (s[..., motion].abs().amax(-1) <= self.stop_speed)
         return arrived.float()
 
-    def _habit(self, agent: Any, state: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def _habit(self, agent: WorldModel, state: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """:meth:`rollout` of the habit from ``state``, computed once per state (the probe and the plan share it)."""
         if self._habit_cache is None or self._habit_cache[0] is not state:
             self._habit_cache = (state, *self.rollout(agent, state))
         return self._habit_cache[1:]
 
-    def probe(self, agent: Any, state: torch.Tensor) -> HabitProbe:
+    def probe(self, agent: WorldModel, state: torch.Tensor) -> HabitProbe:
         value, hands, _ = self._habit(agent, state)
         final = torch.linalg.vector_norm(hands[:, 0, -1] - state[:, TARGET], dim=-1)
         return HabitProbe(value[:, 0], final)
 
     # -- the plan -------------------------------------------------------------------------------
-    def propose(self, agent: Any, ctx: ArbitrationContext, iterations: torch.Tensor) -> Proposal:
+    def propose(self, agent: WorldModel, ctx: ArbitrationContext, iterations: torch.Tensor) -> Proposal:
         p, state, E = self.p, ctx.state, ctx.E
         budget = torch.as_tensor(iterations).long().clamp(0, p.iterations)
         best_values = torch.full((E, p.iterations), float("nan"))
@@ -202,13 +203,3 @@ def _best(u: torch.Tensor, v: torch.Tensor, h: torch.Tensor) -> tuple[torch.Tens
 def _stream_seed(seed: int) -> int:
     state = np.random.SeedSequence(int(seed), spawn_key=(STREAM,)).generate_state(1, dtype=np.uint64)[0]
     return int(state) & (2**63 - 1)
-
-
-def build(kind_planner: str, cfg: Any, seeds: Sequence[int], action_dim: int, zone_radius: float,
-          stop_speed: float | None) -> Planner:
-    """The planner ``kind_planner`` ("inverse" or "mpc") for ``cfg`` (its ``mpc`` table)."""
-    if kind_planner == "inverse":
-        return InversePlanner()
-    if kind_planner == "mpc":
-        return MPCPlanner(cfg.params[MPCParams.table], seeds, action_dim, zone_radius, stop_speed)
-    raise ValueError(f"unknown planner {kind_planner!r}; known: inverse, mpc")

@@ -14,6 +14,7 @@ fp32 stays the default.
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import platform
 from pathlib import Path
@@ -97,3 +98,23 @@ def resolve(requested: str, device: str = "cpu", cpu: CpuInfo | None = None) -> 
         return Resolved("bf16", f"auto: the CPU {cpu.model} has bf16 dot products ({', '.join(which)})")
     return Resolved("fp32", f"auto: the CPU {cpu.model} lacks bf16 dot products (no {' or '.join(BF16_CPU_FLAGS)} "
                             "in /proc/cpuinfo), so bf16 would be emulated and slower than fp32")
+
+
+def autocast(device_type: str, precision: str) -> "contextlib.AbstractContextManager":
+    """The update's autocast: the matrix products in bf16 where ``precision`` is ``bf16``; else nothing."""
+    import torch
+
+    if precision == "bf16":
+        return torch.autocast(device_type, dtype=torch.bfloat16)
+    return contextlib.nullcontext()
+
+
+def fp32_unless(net: str, device_type: str, precision: str,
+                networks: tuple[str, ...]) -> "contextlib.AbstractContextManager":
+    """Inside the update's autocast: fp32 for ``net`` (a target network counts as its online one) when the update
+    runs in bf16 but ``networks`` (``AgentConfig.bf16_networks``) leaves it out; else no change."""
+    import torch
+
+    if precision == "bf16" and net not in networks:
+        return torch.autocast(device_type, enabled=False)
+    return contextlib.nullcontext()

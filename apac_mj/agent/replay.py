@@ -12,13 +12,15 @@ from typing import Sequence
 
 import torch
 
+from apac_mj.layout import POSITION_DIM
+
 FIELDS = ("state", "action", "reward", "next_state", "done", "executed_action")
 
 
 class EnsembleReplay:
     """E ring buffers of transitions ``(s, a, r, s2, done)``."""
 
-    def __init__(self, generators: Sequence[torch.Generator], capacity: int, state_dim: int = 6,
+    def __init__(self, generators: Sequence[torch.Generator], capacity: int, state_dim: int = POSITION_DIM,
                  action_dim: int = 2, device: str | torch.device = "cpu") -> None:
         if capacity < 1:
             raise ValueError(f"replay capacity must be >= 1, got {capacity}")

@@ -26,7 +26,7 @@ examples:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from apac_mj.experiments.forced_response import Protocol
+    from apac_mj.experiments.forced_response import Protocol, study_run
     from apac_mj.run.timing import Timing
     from apac_mj.util.overrides import field_help
 
@@ -34,8 +34,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description="Train on a cued task, remap two cues, and test the frozen agents with a "
                                    "limited preparation time (Hardwick et al. 2019).",
                        epilog=EPILOG + "\n\nProtocol fields (--set NAME=VALUE):\n"
-                       + field_help(Protocol, skip=("timing",)) + "\n\nTiming fields (--set timing.NAME=VALUE, ms):\n"
-                       + field_help(Timing), formatter_class=argparse.RawDescriptionHelpFormatter)
+                       + field_help(Protocol, skip=("timing", "run"))
+                       + "\n\nTiming fields (--set timing.NAME=VALUE, ms):\n"
+                       + field_help(Timing) + "\n\nThe run every kind trains: the fields of `apac-mj train --help` "
+                       "(--set task=..., seeds=0-9, batch_size=64, agent.mpc.horizon=4, ...; not episodes: the "
+                       "practice lengths set them)", formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("action", choices=("run", "test", "report", "record"),
                    help="run: the whole protocol into --out; test: one trained run's test into --out (a .parquet); "
                         "report: the report of a study directory; record: trials of a trained run into --out (.rrd)")
@@ -50,32 +53,37 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--cue", type=int, default=None, help="record: the cue shown (default the first remapped one)")
     p.add_argument("--member", type=int, default=0, help="record: which seed of the run (its index)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="a protocol or timing field (repeatable): seeds=0-9, practice=100,400,1000, trials=100, "
-                        "timing.habit_latency_ms=300, ...")
+                   help="a protocol, timing, run or agent field (repeatable): seeds=0-9, practice=100,400,1000, "
+                        "trials=100, timing.habit_latency_ms=300, batch_size=64, ...")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=run)
 
 
 def protocol(items: list[str]):
-    """The protocol from the --set items, each typed and checked (before anything is written)."""
-    from apac_mj.experiments.forced_response import Protocol, protocol_from
+    """The protocol from the --set items in the grammar of ``train`` and ``grid`` (:mod:`apac_mj.util.overrides`):
+    a protocol field, ``timing.NAME``, a field of the run every kind trains (``task``, ``seeds``, ...) or an agent
+    field (``batch_size``, ``agent.mpc.horizon``); each typed and checked before anything is written."""
+    import dataclasses
+
+    from apac_mj.config import AgentConfig, TrainConfig
+    from apac_mj.experiments.forced_response import Protocol, study_run
     from apac_mj.run.timing import Timing
     from apac_mj.util import overrides
 
-    types = {**overrides.field_types(Protocol), **{f"timing.{k}": v for k, v in overrides.field_types(Timing).items()}}
-    values = {}
-    for item in items:
-        key, value = overrides.parse_set(item)
-        if key not in types or key == "timing":
-            raise ValueError(f"--set {key}: unknown setting; known: {sorted(k for k in types if k != 'timing')}")
-        if key == "seeds":
-            values[key] = overrides.parse_seeds(value)
-        elif key in ("agents", "practice", "prep_times_ms"):
-            parts = value if isinstance(value, (list, tuple)) else str(value).split(",")
-            values[key] = overrides.coerce(list(parts), types[key], f"--set {key}")
-        else:
-            values[key] = overrides.coerce(value, types[key], f"--set {key}")
-    return protocol_from(values)
+    run = {f.name for f in dataclasses.fields(TrainConfig)} - {"agent", "episodes"}  # episodes: the practice's
+    own = {f.name for f in dataclasses.fields(Protocol)} - {"run"}
+    data = overrides.apply_sets({}, items, agent_fields=overrides.keys(AgentConfig), top_level=own | run)
+    if "seeds" in data:
+        data["seeds"] = overrides.parse_seeds(data["seeds"])
+    agent = overrides.typed_fields(AgentConfig, data.pop("agent", {}), "--set agent.", skip=("kind",))
+    timing = Timing(**overrides.typed_fields(Timing, data.pop("timing", {}), "--set timing."))
+    fields = overrides.typed_fields(Protocol, {k: v for k, v in data.items() if k in own}, "--set ",
+                                    skip=("run", "timing"))
+    base = study_run()
+    cfg = dataclasses.replace(base, agent=dataclasses.replace(base.agent, **agent),
+                              **overrides.typed_fields(TrainConfig, {k: v for k, v in data.items() if k in run},
+                                                       "--set ", skip=("agent",)))
+    return Protocol(**fields, timing=timing, run=cfg)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -106,7 +114,6 @@ def run(args: argparse.Namespace) -> int:
         if Path(args.out).exists():
             raise FileExistsError(f"{args.out} exists; choose another --out (nothing was overwritten)")
         times = tuple(_ms(v) for v in args.prep_times.split(","))
-        proto.timing.check_deadlines(times)
         print(fr.record_trials(args.path, args.out, times, variant=args.variant, cue=args.cue,
                                member=args.member, timing=proto.timing))
     else:

@@ -20,8 +20,8 @@ from apac_mj.agent.agent import Agent
 from apac_mj.config import AgentConfig, TrainConfig
 from apac_mj.kinematics import Geometry
 from apac_mj.recording.recording import RENDER, EpisodeRecorder, read_recording
-from apac_mj.run.build import environments, load_run, make_agent
-from apac_mj.run.rollout import EpisodeLoop, FunctionHook, Hook
+from apac_mj.run.build import environments, episode_loop, load_run, make_agent
+from apac_mj.run.rollout import FunctionHook, Hook
 from apac_mj.run.run_dir import RunDir, config_dict, say
 from apac_mj.suite import spec_for
 from apac_mj.suite.render import write_video
@@ -121,7 +121,7 @@ def frozen_episodes(cfg: TrainConfig, net: Agent, env: VecEnv, running: dict[str
     """Roll out ``episodes`` frozen episodes of every member (no noise, no learning), the arbitrator seeing
     training episodes ``first``, ``first + 1``, ...; ``hook`` (a :class:`apac_mj.run.rollout.Hook`) sees them;
     ``until(n)``: stop early once it is true after ``n`` episodes."""
-    loop = EpisodeLoop(net, kinds.arbitrator_for(cfg.agent), env, hooks=[hook], adapt=False)
+    loop = episode_loop(net, env, hooks=[hook], adapt=False)
     loop.load_state_dict(running)
     for k in tqdm(range(episodes), desc="record", unit="episode", disable=not progress):
         loop.run_episode(np.ones(env.E, dtype=bool), first + k)

@@ -11,7 +11,10 @@ TD-MPC2's ``train.py`` is the model: every part is built once, here, and handed 
 * :func:`environments` builds the E environments from that spec; training's start their episode count at
   ``-babbling_episodes`` (:class:`VecEnv`'s ``episode_offset``, the one owner of the babbling offset).
 * :func:`make_agent` is the one place an :class:`Agent` is constructed, sized by the environments it acts in
-  (:attr:`VecEnv.sizes`: no environment is built only to read two specs).
+  (:attr:`VecEnv.sizes`: no environment is built only to read two specs), with a dynamics model where its
+  kind's planner plans through one (:attr:`apac_mj.systems.PlannerKind.model`).
+* :func:`episode_loop` is the episode loop of an agent in its environments: the kind's arbitrator and planner
+  and the run's integrator, each asked of its registry (:mod:`apac_mj.kinds`, :mod:`apac_mj.systems`).
 * :func:`load_run` is a written run's config, spec, environments and agent with its newest intact checkpoint's
   weights (the frozen tests, recordings and the benches); a task changed since the run trained is refused.
 * :func:`task_record` is the task as a run's config.json records it (:class:`~apac_mj.run.run_dir.TaskRecord`).
@@ -26,15 +29,19 @@ import os
 from pathlib import Path
 from typing import Any, Sequence
 
+from apac_mj import kinds, systems
 from apac_mj.agent.agent import Agent
-from apac_mj.config import TrainConfig
+from apac_mj.config import AgentConfig, TrainConfig
 from apac_mj.kinds import arbitrator_for, check as check_kind
-from apac_mj.kinematics import Geometry, Sizes
+from apac_mj.kinematics import Geometry
+from apac_mj.layout import Sizes
+from apac_mj.rules import MPCParams
 from apac_mj.run.rollout import EpisodeLoop, Hook
 from apac_mj.run.run_dir import NETWORK_KEYS, RunCheckpoint, RunDir, TaskRecord
 from apac_mj.suite import spec_for
 from apac_mj.suite.task_spec import TaskSpec
 from apac_mj.suite.vec_env import VecEnv
+from apac_mj.types import Arbitrator, Integrator, Planner, PlanningTask
 from apac_mj.util import paths
 from apac_mj.util.files import jsonable
 
@@ -131,15 +138,56 @@ def make_agent(cfg: TrainConfig, spec: TaskSpec, sizes: Sizes, device: str | Non
                precision: str | None = None) -> Agent:
     """The run's agent (fresh networks) for ``spec``'s geometry and the environments' ``sizes``; on ``device``
     in ``precision`` (default: the run's)."""
+    dynamics = cfg.agent.params[MPCParams.table] if planner_kind(cfg.agent).model else None
     return Agent(cfg.agent, list(cfg.seeds), device=cfg.device if device is None else device,
-                 precision=precision or cfg.precision, geometry=Geometry.from_spec(spec), sizes=sizes)
+                 precision=precision or cfg.precision, geometry=Geometry.from_spec(spec), sizes=sizes,
+                 dynamics=dynamics)
+
+
+def planner_kind(cfg: AgentConfig) -> systems.PlannerKind:
+    """The planner that ``cfg.kind`` names (:mod:`apac_mj.systems`)."""
+    return systems.planner(kinds.get(cfg.kind).planner)
+
+
+def make_planner(cfg: AgentConfig, task: PlanningTask) -> Planner:
+    """The planning system of ``cfg.kind`` for ``task``; a factory that builds no :class:`Planner` is an error
+    naming it."""
+    kind = planner_kind(cfg)
+    planner = kind.build(cfg, task)
+    if not isinstance(planner, Planner):
+        raise TypeError(f"planner {kind.name!r} built a {type(planner).__name__}, not an apac_mj.types.Planner")
+    return planner
+
+
+def make_integrator(cfg: AgentConfig, E: int, obs_std: float, device: Any) -> Integrator:
+    """The integrator ``cfg.integrator`` for ``E`` members; ``obs_std``: the task's observation noise (cm)."""
+    kind = systems.integrator(cfg.integrator)
+    integrator = kind.build(cfg, E, obs_std, device)
+    if not isinstance(integrator, Integrator):
+        raise TypeError(f"integrator {kind.name!r} built a {type(integrator).__name__}, not an "
+                        "apac_mj.types.Integrator")
+    return integrator
+
+
+def episode_loop(agent: Agent, env: VecEnv, arbitrator: Arbitrator | None = None, hooks: Sequence[Hook] = (),
+                 adapt: bool = True, zone_radius: float | None = None) -> EpisodeLoop:
+    """The episode loop of ``agent`` in ``env``: ``arbitrator`` (default the kind's), the kind's planner judging
+    imagined arrival by the loop's zone (``zone_radius``, default the task's) and the task's stop speed, and the
+    run's integrator with the task's observation noise. ``adapt``: the running statistics learn (training)."""
+    cfg = agent.cfg
+    zone = env.spec.zone_radius if zone_radius is None else zone_radius
+    task = PlanningTask(tuple(agent.seeds), agent.action_dim, zone, env.spec.stop_speed)
+    integrator = make_integrator(cfg, env.E, env.spec.observation_noise_std, agent.device)
+    return EpisodeLoop(agent, arbitrator_for(cfg) if arbitrator is None else arbitrator, env, zone_radius=zone_radius,
+                       hooks=hooks, adapt=adapt, integrator=integrator, planner=make_planner(cfg, task))
 
 
 def build(cfg: TrainConfig, spec: TaskSpec, hooks: Sequence[Hook] = ()) -> Run:
-    """A new run's parts: the training environments, the agent, the episode loop (the kind's arbitrator)."""
+    """A new run's parts: the training environments, the agent, the episode loop (the kind's arbitrator and
+    planner, the run's integrator)."""
     env = environments(cfg, spec)
     agent = make_agent(cfg, spec, env.sizes)
-    return Run(cfg, spec, env, agent, EpisodeLoop(agent, arbitrator_for(cfg.agent), env, hooks=hooks))
+    return Run(cfg, spec, env, agent, episode_loop(agent, env, hooks=hooks))
 
 
 def load_run(run_dir: str | Path, device: str | None = None, precision: str | None = None,

@@ -39,8 +39,8 @@ from tqdm.auto import tqdm
 from apac_mj.agent.agent import Agent
 from apac_mj.config import TrainConfig
 from apac_mj.kinematics import angle_grid, motion_function
-from apac_mj.kinds import arbitrator_for, get as get_kind
-from apac_mj.run.build import environments, load_run
+from apac_mj.kinds import get as get_kind
+from apac_mj.run.build import environments, episode_loop, load_run
 from apac_mj.run.rollout import EpisodeLoop, EpisodeState, Hook, OnEpisodeStart, OnStep, as_hooks
 from apac_mj.run.run_dir import TIMING_COLUMNS, RunDir
 from apac_mj.suite import spec_for
@@ -185,8 +185,7 @@ def run_protocol(cfg: TrainConfig, agent: Agent, spec: TaskSpec, lengths: np.nda
     ``label``: the progress bar's (:func:`evaluate`: "evaluate <protocol>")."""
     env = eval_env(cfg, spec, None, occluded) if env is None else env
     env.set_link_lengths(lengths)
-    episodes = EpisodeLoop(agent, arbitrator_for(cfg.agent), env, zone_radius=spec.zone_radius, hooks=hooks,
-                           adapt=False)
+    episodes = episode_loop(agent, env, zone_radius=spec.zone_radius, hooks=hooks, adapt=False)
     episodes.load_state_dict(running or {})
     counts = np.array([len(t) for t in targets])
     rows = []
@@ -217,18 +216,13 @@ def _row(env: VecEnv, k: int, index: int, st: EpisodeState, path: list[list[np.n
          judged: bool) -> dict[str, Any]:
     """One result row; ``judged_reached``: the episode ended because the agent judged the target
     reached (with vision: it was; occluded: the forward model's estimate was inside the zone)."""
-    target = env.targets()[k]
-    distance = float(env.distances()[k])
-    p = np.array(path[k])
-    step, habit_n, plan_n = st.step, st.habit_n, st.plan_n
-    return {"seed": env.seeds[k], "target_index": index, "target_x": float(target[0]), "target_y": float(target[1]),
-            "success": distance <= zone_radius, "steps": int(step[k]), "final_distance": distance,
-            "habit_actions": int(habit_n[k]), "planning_actions": int(plan_n[k]),
-            "time_cost": time_cost(int(habit_n[k]), int(plan_n[k])), "judged_reached": judged,
-            "estimate_error": float(st.estimate_error_sum[k] / max(1, step[k])),
-            "path_x": p[:, 0].tolist(), "path_y": p[:, 1].tolist(),
-            "habit_seconds": float(st.habit_seconds[k]), "planning_seconds": float(st.planning_seconds[k]),
-            "plan_iterations": int(st.plan_iterations[k])}
+    target, distance, p, measures = env.targets()[k], float(env.distances()[k]), np.array(path[k]), st.summary(k)
+    row = {"seed": env.seeds[k], "target_index": index, "target_x": float(target[0]), "target_y": float(target[1]),
+           "success": distance <= zone_radius, "final_distance": distance, "judged_reached": judged,
+           "time_cost": time_cost(measures["habit_actions"], measures["planning_actions"]),
+           "path_x": p[:, 0].tolist(), "path_y": p[:, 1].tolist(), **measures}
+    order = [*COLUMNS, "path_x", "path_y", *MEASURED_COLUMNS]
+    return {**{c: row[c] for c in order}, **{c: v for c, v in row.items() if c not in order}}
 
 
 def time_cost(habit_actions: int, planning_actions: int) -> int:

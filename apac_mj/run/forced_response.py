@@ -28,19 +28,27 @@ preparation time and picks each trial's candidate. Same seed, same numbers.
 """
 from __future__ import annotations
 
+import copy
 import dataclasses
-import math
-from typing import Any, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 import torch
 
 from apac_mj import kinds
-from apac_mj.agent.arbitration import DeltaArbitrator
+from apac_mj.config import AgentConfig, TrainConfig
 from apac_mj.rules import MPCParams
-from apac_mj.run.timing import Timing
+from apac_mj.run.build import LoadedRun, episode_loop, load_run
+from apac_mj.run.rollout import EpisodeLoop, Hook
+from apac_mj.run.run_dir import RunDir
+from apac_mj.run.timing import TestPlan, Timing
 from apac_mj.run.variants import IMAGINED
-from apac_mj.types import END, TARGET, ArbitrationContext, Arbitrator, Decision, Policy
+from apac_mj.suite.task_spec import Cues
+from apac_mj.types import END, TARGET, ArbitrationContext, Arbitrator, Decision, WorldModel
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 #: Outcomes of a trial, in the order of the count columns.
 OUTCOMES = ("correct", "habitual", "other", "timeout")
@@ -50,12 +58,13 @@ ACTORS = ("habit", "planner", "default")
 STILL_CM = 1.0
 
 
-def variants(cfg_agent: Any) -> tuple[str, ...]:
-    """The variants a kind is tested as (:mod:`apac_mj.run.variants`): the kind's own rule, and for the paper's
-    delta rule also the delta of the habit's imagined transition (what the rule could read at a trial's first
-    decision)."""
-    delta_rule = isinstance(kinds.arbitrator_for(cfg_agent), DeltaArbitrator)
-    return (cfg_agent.kind, cfg_agent.kind + IMAGINED) if delta_rule else (cfg_agent.kind,)
+def variants(cfg_agent: AgentConfig, arbitrator: Arbitrator | None = None) -> tuple[str, ...]:
+    """The variants a kind is tested as (:mod:`apac_mj.run.variants`): the kind's own rule, and for a rule that
+    reads the last transition's delta (:attr:`Arbitrator.reads_last_delta`: the paper's delta rule) also the delta
+    of the habit's imagined transition (what the rule could read at a trial's first decision). ``arbitrator``:
+    the kind's, if built already."""
+    arbitrator = kinds.arbitrator_for(cfg_agent) if arbitrator is None else arbitrator
+    return (cfg_agent.kind, cfg_agent.kind + IMAGINED) if arbitrator.reads_last_delta else (cfg_agent.kind,)
 
 
 @dataclasses.dataclass
@@ -88,7 +97,7 @@ def classify(hand: np.ndarray, start: np.ndarray, targets_now: np.ndarray, targe
     return out
 
 
-def imagined_delta(agent: Policy, state: torch.Tensor, action: torch.Tensor, zone_radius: float) -> torch.Tensor:
+def imagined_delta(agent: WorldModel, state: torch.Tensor, action: torch.Tensor, zone_radius: float) -> torch.Tensor:
     """``[E]`` the TD error of the habit's imagined transition: the forward model's next arm after ``action``
     from ``state``, rewarded by minus its distance to the target the planner is told, terminal inside the zone."""
     executable = agent.executable(action, state)
@@ -97,20 +106,29 @@ def imagined_delta(agent: Policy, state: torch.Tensor, action: torch.Tensor, zon
     return agent.td_error(state, executable, -distance, nxt, (distance <= zone_radius).float())
 
 
-def rule_ms(variant: str, cfg_agent: Any, timing: Timing) -> float:
+def rule_ms(variant: str, cfg_agent: AgentConfig, timing: Timing, arbitrator: Arbitrator | None = None) -> float:
     """How long after the habit's proposal the rule of ``variant`` has its inputs: the imagined transition's
     delta one forward-model pass, a rule reading the habit's probe ``agent.mpc.horizon`` of them; the other
-    rules none."""
+    rules none. ``arbitrator``: the kind's, if built already."""
     if variant != cfg_agent.kind and variant.endswith(IMAGINED):
         return timing.model_pass_ms
-    if kinds.arbitrator_for(cfg_agent).needs_habit_probe:
+    arbitrator = kinds.arbitrator_for(cfg_agent) if arbitrator is None else arbitrator
+    if arbitrator.needs_habit_probe:
         return timing.model_pass_ms * cfg_agent.params[MPCParams.table].horizon
     return 0.0
 
 
-def iteration_ms(cfg_agent: Any, timing: Timing) -> float:
-    """One planning iteration's duration for the kind's planner."""
-    return timing.mpc_iteration_ms if kinds.get(cfg_agent.kind).planner == "mpc" else timing.inverse_pass_ms
+def iteration_ms(cfg_agent: AgentConfig, timing: Timing) -> float:
+    """One planning iteration's duration for the kind's planner (:meth:`Timing.iteration`)."""
+    return timing.iteration(kinds.get(cfg_agent.kind).planner)
+
+
+def ready_iterations(t: float, S: np.ndarray, iteration: float, K: int, uses_planner: bool) -> np.ndarray:
+    """The planning iterations finished by the deadline ``t`` (ms) by planners that started at ``S``, each
+    ``iteration`` ms long (at most ``K``; none for a kind without a planner)."""
+    if not uses_planner:
+        return np.zeros(np.shape(S), int)
+    return np.clip(np.floor((t - S) / iteration), 0, K).astype(int)
 
 
 class Committed(Arbitrator):
@@ -124,42 +142,44 @@ class Committed(Arbitrator):
         return Decision(torch.full((ctx.E,), self.habit), {}, torch.full((ctx.E,), self.iterations))
 
 
-def candidates(loop: Any, cfg: Any, variant: str, repeats: int, timing: Timing) -> Candidates:
-    """Run the frozen agent of ``loop`` (an :class:`~apac_mj.run.rollout.EpisodeLoop` on a cued task's
-    environments) ``repeats`` times per cue under the remapped mapping: the rule's decision at the trial's first
-    step, and the movement each candidate makes when committed to (the habit; the plan with k = 1..K iterations
-    per step), executed in MuJoCo to the episode's end; each classified by where the hand ended."""
-    env, agent, spec = loop.env, loop.agent, loop.env.spec
-    cues, E, K = spec.cues, env.E, loop.planner.max_iterations
-    everyone = np.ones(E, dtype=bool)
-    now, before = cues.mapping(True), cues.mapping(False)
-    radius = _response_radius(now)
+def candidates(loop: EpisodeLoop, cfg: TrainConfig, variant: str, repeats: int, timing: Timing) -> Candidates:
+    """Run the frozen agent of ``loop`` (:func:`frozen_loop`: a cued task's environments) ``repeats`` times per
+    cue under the remapped mapping: the rule's decision at the trial's first step, and the movement each
+    candidate makes when committed to (the habit; the plan with k = 1..K iterations per step), executed in MuJoCo
+    to the episode's end; each classified by where the hand ended."""
+    cues, E, K = loop.env.spec.cues, loop.env.E, loop.planner.max_iterations
     shape = (E, cues.n, repeats)
     out = {"habit": np.zeros(shape, int), "plan": np.zeros((*shape, K), int), "rule_habit": np.zeros(shape, bool),
            "rule_iterations": np.zeros(shape, int), "hand_habit": np.zeros((*shape, 2)),
            "hand_plan": np.zeros((*shape, K, 2))}
-    env.set_mapping_override(True)
-    try:
-        for c in range(cues.n):
-            env.set_cue_override(np.full(E, c))
+    for c in range(cues.n):
+        with loop.env.overridden(cue=c, remapped=True):
             for r in range(repeats):
-                st = loop.begin(everyone)
-                start = st.state[:, END].cpu().numpy()
-                ctx = st.context(np.full(E, cfg.episodes), agent, loop.zone_radius, loop.planner, habit_action=True)
-                out["rule_habit"][:, c, r], out["rule_iterations"][:, c, r] = _rule(loop, ctx, variant, cfg)
-                hands = [movement(loop, Committed(True))] + [movement(loop, Committed(False, k)) for k in range(1, K + 1)]
-                out["hand_habit"][:, c, r], out["hand_plan"][:, c, r] = hands[0], np.stack(hands[1:], 1)
-                out["habit"][:, c, r] = classify(hands[0], start, now, before, c, radius)
-                out["plan"][:, c, r] = classify(np.stack(hands[1:], 1), start[:, None], now, before, c, radius)
-    finally:
-        env.set_cue_override(None)
-        env.set_mapping_override(None)
+                for name, value in _trial(loop, cfg, variant, c).items():
+                    out[name][:, c, r] = value
     return Candidates(out["habit"], out["plan"], np.full(shape, OUTCOMES.index("timeout")), out["rule_habit"],
-                      out["rule_iterations"], rule_ms(variant, cfg.agent, timing),
+                      out["rule_iterations"], rule_ms(variant, cfg.agent, timing, loop.arbitrator),
                       {"habit": out["hand_habit"], "plan": out["hand_plan"]})
 
 
-def _rule(loop: Any, ctx: ArbitrationContext, variant: str, cfg: Any) -> tuple[np.ndarray, np.ndarray]:
+def _trial(loop: EpisodeLoop, cfg: TrainConfig, variant: str, cue: int) -> dict[str, np.ndarray]:
+    """One trial of every member with ``cue`` shown (the overrides set): the rule's decision at its first step,
+    each candidate's movement (where the hand ends) and its outcome."""
+    cues, E, K = loop.env.spec.cues, loop.env.E, loop.planner.max_iterations
+    now, before = cues.mapping(True), cues.mapping(False)
+    radius = _response_radius(now)
+    st = loop.begin(np.ones(E, dtype=bool))
+    start = st.state[:, END].cpu().numpy()
+    ctx = st.context(np.full(E, cfg.episodes), loop.agent, loop.zone_radius, loop.planner, habit_action=True)
+    rule_habit, rule_iterations = _rule(loop, ctx, variant, cfg)
+    hands = [movement(loop, Committed(True))] + [movement(loop, Committed(False, k)) for k in range(1, K + 1)]
+    plan_hands = np.stack(hands[1:], 1)
+    return {"rule_habit": rule_habit, "rule_iterations": rule_iterations, "hand_habit": hands[0],
+            "hand_plan": plan_hands, "habit": classify(hands[0], start, now, before, cue, radius),
+            "plan": classify(plan_hands, start[:, None], now, before, cue, radius)}
+
+
+def _rule(loop: EpisodeLoop, ctx: ArbitrationContext, variant: str, cfg: TrainConfig) -> tuple[np.ndarray, np.ndarray]:
     """The rule's decision at a trial's first step: ``[E]`` habit, ``[E]`` iterations granted to a plan."""
     K = loop.planner.max_iterations
     if variant != cfg.agent.kind:  # the delta rule on the imagined transition's delta
@@ -171,16 +191,21 @@ def _rule(loop: Any, ctx: ArbitrationContext, variant: str, cfg: Any) -> tuple[n
     return habit, np.clip(k, 1, K)
 
 
-def movement(loop: Any, committed: Arbitrator, hooks: Sequence[Any] = (), episode: int = 0) -> np.ndarray:
+def movement(loop: EpisodeLoop, committed: Arbitrator, hooks: Sequence[Hook] = (), episode: int = 0) -> np.ndarray:
     """``[E, 2]`` where the hand ends (MuJoCo's site) after a frozen episode from the start pose in which every
     step is ``committed``'s controller (the loop's agent, planner and environments; ``hooks`` see it as
     ``episode``)."""
-    from apac_mj.run.rollout import EpisodeLoop
-
-    run = EpisodeLoop(loop.agent, committed, loop.env, zone_radius=loop.zone_radius, hooks=hooks, adapt=False,
-                      integrator=loop.integrator, planner=loop.planner)
-    run.run_episode(np.ones(loop.env.E, dtype=bool), episode=episode)
+    loop.with_arbitrator(committed, hooks).run_episode(np.ones(loop.env.E, dtype=bool), episode=episode)
     return loop.env.true_arm()[:, END].copy()
+
+
+def no_movement(loop: EpisodeLoop, hooks: Sequence[Hook] = ()) -> None:
+    """A time-out as ``hooks`` see it: one step of every member with a zero command."""
+    run, everyone = loop.with_arbitrator(Committed(True), hooks), np.ones(loop.env.E, dtype=bool)
+    st = run.begin(everyone)
+    info = run.act(st, everyone, np.zeros(loop.env.E, dtype=np.int64), explore=False,
+                   override=lambda a, h: (torch.zeros_like(a), h))
+    run.advance(st, info, everyone)
 
 
 def _response_radius(targets: np.ndarray) -> float:
@@ -196,29 +221,33 @@ def choose(t: float, H: np.ndarray, S: np.ndarray, rule_habit: np.ndarray, rule_
     """What acts at deadline ``t`` (ms) in trials whose habit is ready at ``H`` and planner starts at ``S``:
     masks ``plan`` and ``habit`` (neither: the default, no movement) and the plan's iterations ``k``."""
     habit_ready = (H <= t) & uses_habit
-    k_ready = np.clip(np.floor((t - S) / iteration), 0, K).astype(int) if uses_planner else np.zeros(H.shape, int)
+    k_ready = ready_iterations(t, S, iteration, K, uses_planner)
     rule_ready = habit_ready & (H + rule_ms <= t)
     plan = (k_ready >= 1) & ((rule_ready & ~rule_habit) | ~habit_ready)
     habit = ~plan & habit_ready
     return plan, habit, np.clip(np.minimum(k_ready, rule_iterations), 1, K)
 
 
+def latencies(timing: Timing, rng: np.random.Generator, shape: tuple[int, ...] = ()) -> tuple[np.ndarray, np.ndarray]:
+    """Draws of when the habit is ready (``H``) and the planner starts (``S``), ms, cut at 0."""
+    H = np.maximum(rng.normal(timing.habit_latency_ms, timing.latency_sd_ms, shape), 0.0)
+    S = np.maximum(rng.normal(timing.planning_latency_ms, timing.latency_sd_ms, shape), 0.0)
+    return H, S
+
+
 def simulate(c: Candidates, timing: Timing, prep_times_ms: Sequence[float], trials: int, seed: int,
              uses_habit: bool, uses_planner: bool, iteration: float) -> dict[str, np.ndarray]:
-    """``trials`` trials per member, cue and preparation time: each draws its latencies and a repeat of the
-    candidates, and acts by what is ready at the deadline. Returns counts ``outcomes`` ``[E, cues, T, 4]``
-    (:data:`OUTCOMES`) and ``acted`` ``[E, cues, T, 3]`` (:data:`ACTORS`)."""
-    T = timing.check_deadlines(prep_times_ms)
-    if isinstance(trials, bool) or not isinstance(trials, int) or trials < 1:
-        raise ValueError(f"trials must be an integer >= 1, got {trials!r}")
+    """``trials`` trials per member, cue and preparation time (checked by the caller: :class:`TestPlan`): each
+    draws its latencies and a repeat of the candidates, and acts by what is ready at the deadline. Returns counts
+    ``outcomes`` ``[E, cues, T, 4]`` (:data:`OUTCOMES`) and ``acted`` ``[E, cues, T, 3]`` (:data:`ACTORS`)."""
+    T = np.asarray(prep_times_ms, dtype=np.float64).ravel()
     rng = np.random.default_rng(seed)
     E, n, R = c.habit.shape
     K = c.plan.shape[-1]
     outcomes, acted = np.zeros((E, n, len(T), len(OUTCOMES)), int), np.zeros((E, n, len(T), len(ACTORS)), int)
     for i, t in enumerate(T):
         shape = (E, n, trials)
-        H = np.maximum(rng.normal(timing.habit_latency_ms, timing.latency_sd_ms, shape), 0.0)
-        S = np.maximum(rng.normal(timing.planning_latency_ms, timing.latency_sd_ms, shape), 0.0)
+        H, S = latencies(timing, rng, shape)
         r = rng.integers(0, R, shape)
         pick = lambda a: np.take_along_axis(a, r, axis=2)  # noqa: E731
         plan, habit, k = choose(t, H, S, pick(c.rule_habit), pick(c.rule_iterations), c.rule_ms, uses_habit,
@@ -236,44 +265,63 @@ def simulate(c: Candidates, timing: Timing, prep_times_ms: Sequence[float], tria
 COLUMNS = ("seed", "variant", "prep_ms", "cue", "remapped", "trials", *OUTCOMES, *(f"{a}_acted" for a in ACTORS))
 
 
-def test_run(run_dir: Any, prep_times_ms: Sequence[float], timing: Timing = Timing(), trials: int = 100,
-             repeats: int = 3, seed: int = 0, device: str | None = None) -> "pd.DataFrame":
-    """The forced-response test of a trained run on a cued task (frozen, the remapped mapping): a table of
-    outcome counts (:data:`COLUMNS`) for each of the kind's :func:`variants`. Settings are checked before the
-    run is loaded."""
-    import pandas as pd
-
-    from apac_mj.kinds import arbitrator_for
-    from apac_mj.run.build import load_run
+def frozen_loop(run_dir: str | Path, device: str | None = None) -> tuple[LoadedRun, EpisodeLoop]:
+    """A trained run on a cued task, frozen: its agent with the checkpoint's weights in the test's environments
+    (the task read once, E environments, each member at its end-of-training lengths) and the episode loop with
+    the kind's arbitrator and planner and the checkpoint's running statistics. A task without remapped cues is
+    refused before the networks are loaded."""
     from apac_mj.run.evaluate import eval_env
-    from apac_mj.run.rollout import EpisodeLoop
     from apac_mj.suite import spec_for
 
-    T = timing.check_deadlines(prep_times_ms)
-    for name, v in (("trials", trials), ("repeats", repeats)):
-        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-            raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
-    loaded = load_run(run_dir, device)
-    cfg, spec = loaded.cfg, spec_for(loaded.cfg)
+    cfg = RunDir(run_dir).train_config()
+    spec = spec_for(cfg)
     if not spec.cued:
         raise ValueError(f"the forced-response test needs a cued task ([cues] in its file); run {run_dir} trained on "
                          f"{cfg.task!r}, which has none")
     if not spec.cues.swap:
         raise ValueError(f"task {cfg.task!r}: [cues] swap names no cues to remap")
-    kind = kinds.get(cfg.agent.kind)
-    env = eval_env(cfg, spec, loaded.ckpt.member_lengths(), occluded=False)
-    rows = []
-    for variant in variants(cfg.agent):
-        loop = EpisodeLoop(loaded.agent, arbitrator_for(cfg.agent), env, zone_radius=spec.zone_radius, adapt=False)
-        loop.load_state_dict(loaded.ckpt.running_statistics())
-        c = candidates(loop, cfg, variant, repeats, timing)
-        counts = simulate(c, timing, T, trials, seed, kind.uses_habit, kind.uses_planner,
-                          iteration_ms(cfg.agent, timing))
-        for k, s in enumerate(cfg.seeds):
-            for cue in range(spec.cues.n):
-                for i, t in enumerate(T):
-                    rows.append({"seed": int(s), "variant": variant, "prep_ms": float(t), "cue": cue,
-                                 "remapped": cue in spec.cues.remapped, "trials": trials,
-                                 **dict(zip(OUTCOMES, counts["outcomes"][k, cue, i].tolist())),
-                                 **dict(zip((f"{a}_acted" for a in ACTORS), counts["acted"][k, cue, i].tolist()))})
+    env = eval_env(cfg, spec, None, occluded=False)
+    loaded = load_run(run_dir, device, env=env, spec=spec)
+    env.set_link_lengths(loaded.ckpt.member_lengths())
+    loop = episode_loop(loaded.agent, env, zone_radius=spec.zone_radius, adapt=False)
+    loop.load_state_dict(loaded.ckpt.running_statistics())
+    return loaded, loop
+
+
+def test_run(run_dir: str | Path, prep_times_ms: Sequence[float], timing: Timing = Timing(), trials: int = 100,
+             repeats: int = 3, seed: int = 0, device: str | None = None) -> pd.DataFrame:
+    """The forced-response test of a trained run on a cued task (frozen, the remapped mapping): a table of
+    outcome counts (:data:`COLUMNS`) for each of the kind's :func:`variants`. Settings are checked before the
+    run is loaded."""
+    plan = TestPlan(tuple(float(t) for t in np.asarray(prep_times_ms, dtype=float).ravel()), trials, repeats,
+                    seed, timing)
+    loaded, loop = frozen_loop(run_dir, device)
+    fresh = copy.deepcopy(loop.state_dict())  # every variant starts from the checkpoint's statistics and plan
+    rows: list[dict] = []
+    for variant in variants(loaded.cfg.agent, loop.arbitrator):
+        loop.load_state_dict(copy.deepcopy(fresh))
+        rows += _rows(loaded.cfg, loaded.spec.cues, variant, plan, _counts(loop, loaded.cfg, variant, plan))
+    import pandas as pd
+
     return pd.DataFrame(rows, columns=list(COLUMNS))
+
+
+def _counts(loop: EpisodeLoop, cfg: TrainConfig, variant: str, plan: TestPlan) -> dict[str, np.ndarray]:
+    """:func:`simulate` over the candidates of ``variant``."""
+    kind = kinds.get(cfg.agent.kind)
+    c = candidates(loop, cfg, variant, plan.repeats, plan.timing)
+    return simulate(c, plan.timing, plan.prep_times_ms, plan.trials, plan.seed, kind.uses_habit, kind.uses_planner,
+                    iteration_ms(cfg.agent, plan.timing))
+
+
+def _rows(cfg: TrainConfig, cues: Cues, variant: str, plan: TestPlan, counts: dict[str, np.ndarray]) -> list[dict]:
+    """The table's rows of one variant (:data:`COLUMNS`)."""
+    rows = []
+    for k, s in enumerate(cfg.seeds):
+        for cue in range(cues.n):
+            for i, t in enumerate(plan.prep_times_ms):
+                rows.append({"seed": int(s), "variant": variant, "prep_ms": float(t), "cue": cue,
+                             "remapped": cue in cues.remapped, "trials": plan.trials,
+                             **dict(zip(OUTCOMES, counts["outcomes"][k, cue, i].tolist())),
+                             **dict(zip((f"{a}_acted" for a in ACTORS), counts["acted"][k, cue, i].tolist()))})
+    return rows

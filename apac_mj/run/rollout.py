@@ -36,10 +36,7 @@ from typing import Any, Callable, Iterator, Sequence
 import numpy as np
 import torch
 
-from apac_mj import kinds
 from apac_mj.agent.arbitration import HISTORY, push_delta
-from apac_mj.agent import integrator as integrators
-from apac_mj.agent.planner import InversePlanner
 from apac_mj.suite.vec_env import VecEnv
 from apac_mj.types import (ARM, END, EXTRA, POSITION_DIM, POSITIONS, TARGET, ArbitrationContext, Arbitrator, Decision,
                            Integrator, Observation, Planner, Policy, StepInfo, StepTensors)
@@ -185,6 +182,15 @@ class EpisodeState:
             self.plan_iterations += np.where(counted, info.plan_iterations, 0)
         self.step += mask
 
+    def summary(self, k: int) -> dict[str, Any]:
+        """Member ``k``'s episode so far as the per-episode columns every table carries (the training's metrics and
+        the frozen tests'): a new per-episode measure is one field above and one line here."""
+        return {"steps": int(self.step[k]), "habit_actions": int(self.habit_n[k]),
+                "planning_actions": int(self.plan_n[k]),
+                "estimate_error": float(self.estimate_error_sum[k] / max(1, self.step[k])),
+                "habit_seconds": float(self.habit_seconds[k]), "planning_seconds": float(self.planning_seconds[k]),
+                "plan_iterations": int(self.plan_iterations[k])}
+
     def context(self, episode: np.ndarray, agent: Policy, zone_radius: float,
                 planner: Planner | None = None, habit_action: bool = True) -> ArbitrationContext:
         """The arbitrator's view of every member at this step (``episode`` as the arbitrator reads it;
@@ -228,10 +234,10 @@ class Choice:
 
 
 def select_action(agent: Policy, arbitrator: Arbitrator, ctx: ArbitrationContext, active: np.ndarray,
-                  explore: bool, planner: Planner | None = None, habit_seconds: float = 0.0) -> Choice:
-    """The arbitrator's choice between the actor's and the planner's proposals (+ OU noise); ``planner``
-    default the paper's inverse model; ``habit_seconds``: the measured time of building ``ctx`` (with the actor's
-    pass where it carries ``habit_action``). Without ``ctx.habit_action`` the actor's pass runs (and is timed)
+                  explore: bool, planner: Planner, habit_seconds: float = 0.0) -> Choice:
+    """The arbitrator's choice between the actor's and the ``planner``'s proposals (+ OU noise);
+    ``habit_seconds``: the measured time of building ``ctx`` (with the actor's pass where it carries
+    ``habit_action``). Without ``ctx.habit_action`` the actor's pass runs (and is timed)
     only when some member's habit acts: a kind that always plans is not charged for a habit it never uses."""
     state = ctx.state
     t0 = time.perf_counter()
@@ -245,7 +251,6 @@ def select_action(agent: Policy, arbitrator: Arbitrator, ctx: ArbitrationContext
         raise ValueError(f"{type(arbitrator).__name__}.use_habit must return [E] = ({ctx.E},) bools, "
                          f"got shape {tuple(habit.shape)}")
     common_seconds = habit_seconds + time.perf_counter() - t0  # the context, the rule (every member)
-    planner = planner or InversePlanner()
     budget = _budget(decision, habit, planner)
     t0 = time.perf_counter()
     habit_action = ctx.habit_action
@@ -323,8 +328,8 @@ class EpisodeLoop:
     """
 
     def __init__(self, agent: Policy, arbitrator: Arbitrator, env: VecEnv, zone_radius: float | None = None,
-                 hooks: Sequence[Hook] = (), adapt: bool = True, integrator: Integrator | None = None,
-                 planner: Planner | None = None) -> None:
+                 hooks: Sequence[Hook] = (), adapt: bool = True, *, integrator: Integrator,
+                 planner: Planner) -> None:
         self.agent, self.arbitrator, self.env = agent, arbitrator, env
         #: Radius (cm) of the target zone the agent judges its estimate by: ``zone_radius``, default the
         #: task's (``env.spec.zone_radius``), resolved here once for every step.
@@ -333,14 +338,17 @@ class EpisodeLoop:
         #: The arbitrator's and the integrator's running statistics learn from the steps (training);
         #: False: frozen (tests).
         self.adapt = adapt
-        #: The state estimate (apac_mj.agent.integrator): default ``agent.cfg.integrator`` with the task's noise.
-        self.integrator = integrator if integrator is not None else integrators.build(
-            agent.cfg, env.E, env.spec.observation_noise_std, agent.device)
+        #: The state estimate (the run's integrator, :mod:`apac_mj.systems`; built by ``apac_mj.run.build``).
+        self.integrator = integrator
         self.integrator.adapt = adapt
-        #: The planning system (apac_mj.agent.planner): default the kind's (``kinds.planner_for``), judging
-        #: imagined arrival by this loop's zone and the task's stop speed.
-        self.planner = planner if planner is not None else kinds.planner_for(
-            agent.cfg, agent.seeds, agent.action_dim, self.zone_radius, env.spec.stop_speed)
+        #: The planning system (the kind's planner, :mod:`apac_mj.systems`; built by ``apac_mj.run.build``).
+        self.planner = planner
+
+    def with_arbitrator(self, arbitrator: Arbitrator, hooks: Sequence[Hook] = ()) -> "EpisodeLoop":
+        """A loop like this one (its agent, environments, zone, integrator and planner, frozen or not) in which
+        ``arbitrator`` decides, seen by ``hooks``."""
+        return EpisodeLoop(self.agent, arbitrator, self.env, zone_radius=self.zone_radius, hooks=hooks,
+                           adapt=self.adapt, integrator=self.integrator, planner=self.planner)
 
     def state_dict(self) -> dict[str, Any]:
         """What a checkpoint keeps: the arbitrator's and the integrator's running statistics; the planner's

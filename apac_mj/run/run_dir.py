@@ -1,6 +1,6 @@
 """The run directory: the one reader and writer of a run's files.
 
-Layout (``docs/architecture.md`` has the columns)::
+Layout (the column constants below; docs/architecture.md has the map)::
 
     RUN_DIR/
       config.json          the resolved TrainConfig, plus "git_commit", "task_spec" and "task_digest"
@@ -44,6 +44,7 @@ import pandas as pd
 
 from apac_mj.config import TrainConfig, migrate, to_dict, train_config_from_dict
 from apac_mj.run import checkpoint
+from apac_mj.types import TIMING_COLUMNS
 from apac_mj.util.files import atomic_write_bytes, atomic_write_text, read_json, remove_stale_temporaries
 from apac_mj.util.lock import locked
 
@@ -58,10 +59,9 @@ LATEST, PREVIOUS, OLD_CHECKPOINTS = "latest.pt", "previous.pt", "ckpt_*.pt"
 METRIC_COLUMNS = ("seed", "episode", "phase", "success", "steps", "return", "final_distance", "habit_actions",
                   "planning_actions", "l1", "l2", "target_x", "target_y", "critic_loss", "actor_loss",
                   "forward_loss", "inverse_loss", "estimate_error")
-#: Measured columns after them (issue 28): each episode's decision time where the habit and where the planner
-#: acted (s), and its planning iterations. Not in the rows' digest: wall times differ from run to run; runs
-#: from before them lack them (NaN when such a run is extended).
-TIMING_COLUMNS = ("habit_seconds", "planning_seconds", "plan_iterations")
+# After them: the measured columns (issue 28; apac_mj.types.TIMING_COLUMNS), not in the rows' digest (wall times
+# differ from run to run; runs from before them lack them: NaN when such a run is extended); then any further
+# column of the rows (the dynamics model's ``dynamics_loss``, a new per-episode measure), in the rows' order.
 #: What every training checkpoint holds (and what a finished run's latest.pt is checked for).
 CHECKPOINT_KEYS = ("config", "loop", "agent", "env", "babbling_generators", "metric_rows")
 #: What reading a run's networks and environments needs (the frozen tests, recordings).
@@ -441,8 +441,7 @@ class RunDir:
         """Atomically write the metric rows as metrics.parquet (columns: METRIC_COLUMNS, then TIMING_COLUMNS where the
         rows have them); return its bytes."""
         buf = io.BytesIO()
-        timed = any(c in r for r in rows[-1:] for c in TIMING_COLUMNS)
-        pd.DataFrame(rows, columns=[*METRIC_COLUMNS, *(TIMING_COLUMNS if timed else ())]).to_parquet(buf, index=False)
+        pd.DataFrame(rows, columns=metric_columns(rows)).to_parquet(buf, index=False)
         table = buf.getvalue()
         atomic_write_bytes(self.path / METRICS, lambda f: f.write(table))
         return table
@@ -480,10 +479,9 @@ class RunDir:
             raise  # out of memory is not a damaged file: nothing is restored or rewritten
         except Exception as e:  # noqa: BLE001 - pyarrow raises many types for a damaged file
             return [], f"cannot be read ({type(e).__name__}: {e})"
-        known = (list(METRIC_COLUMNS), [*METRIC_COLUMNS, *TIMING_COLUMNS])
-        if len(df) < n or list(df.columns) not in known:
+        if len(df) < n or list(df.columns)[:len(METRIC_COLUMNS)] != list(METRIC_COLUMNS):
             return [], (f"has {len(df)} rows, the checkpoint expects {n}" if len(df) < n
-                        else f"has the columns {list(df.columns)}, not {known[-1]}")
+                        else f"has the columns {list(df.columns)}, not {list(METRIC_COLUMNS)} first")
         return [_plain(r) for r in df.iloc[:n].to_dict("records")], None
 
     def summary(self, last: int = 100) -> dict[str, Any]:
@@ -550,6 +548,20 @@ class RunDir:
 
     def write_eval_summary(self, summary: dict[str, Any]) -> None:
         atomic_write_text(self.path / EVAL / "summary.json", json.dumps(summary, indent=2) + "\n")
+
+
+def metric_columns(rows: list[dict[str, Any]]) -> list[str]:
+    """metrics.parquet's columns for ``rows``: :data:`METRIC_COLUMNS`, then :data:`TIMING_COLUMNS` where the last row
+    has them, then every other key of the rows in the order first seen (rows without one: NaN)."""
+    timed = any(c in r for r in rows[-1:] for c in TIMING_COLUMNS)
+    columns = [*METRIC_COLUMNS, *(TIMING_COLUMNS if timed else ())]
+    seen = set(columns) | set(TIMING_COLUMNS)
+    for r in rows:
+        for key in r:
+            if key not in seen:
+                seen.add(key)
+                columns.append(key)
+    return columns
 
 
 def metric_digest(rows: list[dict[str, Any]]) -> str:

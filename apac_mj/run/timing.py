@@ -42,6 +42,17 @@ class Timing:
             if getattr(self, name) <= 0:
                 raise ValueError(f"timing: {name} must be > 0 ms, got {getattr(self, name)!r}")
 
+    def iteration(self, planner: str) -> float:
+        """One iteration of the registered planner ``planner`` (ms): the field its kind names
+        (:attr:`apac_mj.systems.PlannerKind.iteration_ms`)."""
+        from apac_mj import systems
+
+        field = systems.planner(planner).iteration_ms
+        if field not in {f.name for f in dataclasses.fields(self)}:
+            raise ValueError(f"planner {planner!r}: its iteration_ms names {field!r}, not a Timing field "
+                             f"({', '.join(f.name for f in dataclasses.fields(self))})")
+        return float(getattr(self, field))
+
     def check_deadlines(self, prep_times_ms: Sequence[float]) -> np.ndarray:
         """The preparation times as an array, each finite and at least one step (:attr:`step_ms`)."""
         t = np.asarray(prep_times_ms, dtype=np.float64).ravel()
@@ -53,3 +64,28 @@ class Timing:
                              f"(step_ms = {self.step_ms:g}): a deadline shorter than a step launches no movement; "
                              f"got {bad}")
         return t
+
+
+@dataclasses.dataclass(frozen=True)
+class TestPlan:
+    """What one forced-response test runs, checked once when made: the deadlines, the trials, the repeats of the
+    frozen agent, the seed of the latency draws and the timing."""
+
+    __test__ = False  # not a pytest class
+
+    #: Allowed preparation times (ms), each at least one step (:meth:`Timing.check_deadlines`).
+    prep_times_ms: tuple[float, ...]
+    #: Trials per seed, cue and preparation time.
+    trials: int = 100
+    #: Runs of the frozen agent per seed and cue.
+    repeats: int = 3
+    #: The seed of the trials' latency draws.
+    seed: int = 0
+    timing: Timing = Timing()
+
+    def __post_init__(self) -> None:
+        self.timing.check_deadlines(self.prep_times_ms)
+        for name in ("trials", "repeats"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise ValueError(f"{name} must be an integer >= 1, got {v!r}")

@@ -64,8 +64,6 @@ from apac_mj.util.threads import torch_threads
 
 #: Episodes (all seeds) in the progress bar's running success rate and habit share.
 PROGRESS_WINDOW = 20
-#: The agent's losses (``Agent.update``) in the order of the ``*_loss`` metric columns.
-LOSS_NAMES = LOSSES
 
 
 # -- seeding: the only place random streams are derived ---------------------------------------
@@ -82,20 +80,22 @@ class LoopState(EpisodeState):
 
     episode: np.ndarray      # [E] current episode index (training episodes from 0, babbling negative)
     need_reset: np.ndarray   # [E] bool
-    loss_sum: np.ndarray | None = None  # [E, 4] sums of this episode's losses (LOSS_NAMES order)
+    loss_sum: np.ndarray | None = None  # [E, L] sums of this episode's losses (``Agent.loss_names`` order)
     loss_n: np.ndarray | None = None    # [E] updates counted in loss_sum
     checkpoints_done: int = 0
 
     def __post_init__(self) -> None:
         super().__post_init__()
         E = len(self.episode)
-        self.loss_sum = np.zeros((E, len(LOSS_NAMES))) if self.loss_sum is None else self.loss_sum
+        self.loss_sum = np.zeros((E, len(LOSSES))) if self.loss_sum is None else self.loss_sum
         self.loss_n = np.zeros(E, dtype=np.int64) if self.loss_n is None else self.loss_n
 
     @classmethod
-    def fresh(cls, E: int, babbling: int, device: torch.device, state_dim: int = 6) -> "LoopState":
+    def fresh(cls, E: int, babbling: int, device: torch.device, state_dim: int = 6, losses: int = len(LOSSES),
+              ) -> "LoopState":
+        """Every member before its first episode; ``losses``: how many losses the agent reports."""
         return cls(episode=np.full(E, -babbling, dtype=np.int64), need_reset=np.ones(E, dtype=bool),
-                   **EpisodeState.fresh_fields(E, device, state_dim))
+                   loss_sum=np.zeros((E, losses)), **EpisodeState.fresh_fields(E, device, state_dim))
 
     def state_dict(self) -> dict[str, Any]:
         d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
@@ -103,9 +103,14 @@ class LoopState(EpisodeState):
                     v.detach().cpu().clone() if isinstance(v, torch.Tensor) else v) for k, v in d.items()}
 
     @classmethod
-    def from_state_dict(cls, d: dict[str, Any], device: torch.device) -> "LoopState":
+    def from_state_dict(cls, d: dict[str, Any], device: torch.device, losses: int = len(LOSSES)) -> "LoopState":
+        """A saved carry; a checkpoint from before the dynamics model's loss was reported (``losses`` more than it
+        kept) gets NaN for it until the episode in progress ends."""
         kw = {k: (v.numpy().copy() if isinstance(v, torch.Tensor) and k != "state" else v) for k, v in d.items()}
         kw["state"] = d["state"].to(device)
+        kept = kw["loss_sum"]
+        if kept.shape[1] < losses:
+            kw["loss_sum"] = np.concatenate([kept, np.full((len(kept), losses - kept.shape[1]), np.nan)], 1)
         return cls(**kw)
 
     def slowest(self) -> int:
@@ -169,7 +174,7 @@ class Trainer:
         self.run = build(cfg, self.spec, self.hooks)
         self.babbling_generators = babbling_generators(list(cfg.seeds))
         self.state = LoopState.fresh(len(cfg.seeds), cfg.agent.babbling_episodes, self.run.agent.device,
-                                     self.run.agent.state_dim)
+                                     self.run.agent.state_dim, len(self.run.agent.loss_names))
         if run_dir.checkpoint_files():
             self._restore()
             self.saved_at = self.state.slowest()
@@ -199,7 +204,7 @@ class Trainer:
         while (active := st.episode < cfg.episodes).any():
             _start_episodes(st, active, self.run.loop)
             info = self._step(active)
-            for row in _finish_episodes(st, info, list(cfg.seeds)):
+            for row in _finish_episodes(st, info, list(cfg.seeds), self.run.agent.loss_names):
                 self.rows.append(row)
                 if row["phase"] == "train":
                     self.window.append((row["success"], row["habit_actions"], row["planning_actions"]))
@@ -235,7 +240,8 @@ class Trainer:
     def _update(self, active: np.ndarray) -> None:
         """One update of the agent; this episode's loss sums of the members it updated."""
         losses = self.run.agent.update(torch.as_tensor(active))
-        values = torch.stack([losses[n] for n in LOSS_NAMES], dim=1).float().cpu().numpy()  # one transfer
+        names = self.run.agent.loss_names
+        values = torch.stack([losses[n] for n in names], dim=1).float().cpu().numpy()  # one transfer
         updated = np.isfinite(values).all(axis=1)
         self.state.loss_sum[updated] += values[updated]
         self.state.loss_n += updated
@@ -270,7 +276,7 @@ class Trainer:
             env.set_state(ckpt.env)
             for g, s in zip(self.babbling_generators, ckpt.babbling_generators, strict=True):
                 g.set_state(s)
-            self.state = LoopState.from_state_dict(ckpt.loop, agent.device)
+            self.state = LoopState.from_state_dict(ckpt.loop, agent.device, len(agent.loss_names))
             self.run.loop.load_state_dict(ckpt.running_statistics())
         except (KeyError, ValueError, RuntimeError, TypeError, AttributeError) as e:
             raise CheckpointError(f"checkpoint {ckpt.path} is corrupt or incompatible: "
@@ -374,22 +380,20 @@ def _transition(info: StepInfo, babbling: np.ndarray) -> tuple[torch.Tensor, tor
     return s, s2, r, done
 
 
-def _finish_episodes(loop: LoopState, info: StepInfo, seeds: list[int]) -> list[dict[str, Any]]:
-    """Metric rows of the members whose episode ended at this step; mark them for reset."""
+def _finish_episodes(loop: LoopState, info: StepInfo, seeds: list[int],
+                     names: Sequence[str] = LOSSES) -> list[dict[str, Any]]:
+    """Metric rows of the members whose episode ended at this step (the losses ``names``, the agent's
+    ``loss_names``); mark them for reset."""
     rows = []
     for k in np.flatnonzero(info.active & info.done):
         ep = int(loop.episode[k])
         rows.append({"seed": seeds[k], "episode": ep, "phase": "babbling" if ep < 0 else "train",
-                     "success": bool(info.reached[k]), "steps": int(loop.step[k]), "return": float(loop.ret[k]),
-                     "final_distance": float(info.distance[k]), "habit_actions": int(loop.habit_n[k]),
-                     "planning_actions": int(loop.plan_n[k]), "l1": float(info.link_lengths[k, 0]),
+                     "success": bool(info.reached[k]), "return": float(loop.ret[k]),
+                     "final_distance": float(info.distance[k]), "l1": float(info.link_lengths[k, 0]),
                      "l2": float(info.link_lengths[k, 1]), "target_x": float(info.target[k, 0]),
-                     "target_y": float(info.target[k, 1]),
-                     "estimate_error": float(loop.estimate_error_sum[k] / max(1, loop.step[k])),
-                     "habit_seconds": float(loop.habit_seconds[k]), "planning_seconds": float(loop.planning_seconds[k]),
-                     "plan_iterations": int(loop.plan_iterations[k]),
+                     "target_y": float(info.target[k, 1]), **loop.summary(k),
                      **{f"{n}_loss": float(loop.loss_sum[k, i] / loop.loss_n[k]) if loop.loss_n[k] else float("nan")
-                        for i, n in enumerate(LOSS_NAMES)}})
+                        for i, n in enumerate(names)}})
         loop.episode[k] += 1
         loop.need_reset[k] = True
     return rows

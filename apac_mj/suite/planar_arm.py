@@ -304,7 +304,7 @@ def check_target(xy, plane_size: tuple[float, float]) -> np.ndarray:
 
 class ScaledArray(specs.Array):
     """An unbounded dm_env array spec that also carries ``scale``: the magnitude the agent's networks read as 1
-    (``kinematics.Sizes.from_specs``). A bound would be wrong: dm_env checks observations against it, and the arm
+    (``layout.Sizes.from_specs``). A bound would be wrong: dm_env checks observations against it, and the arm
     may move faster than its velocity scale."""
 
     __slots__ = ("_scale",)

@@ -14,8 +14,9 @@ holding it loads with ``torch.load(weights_only=True)``.
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
-from typing import Any, Sequence
+from typing import Any, Iterator, Sequence
 
 import mujoco
 import numpy as np
@@ -23,7 +24,7 @@ import torch
 from dm_control.rl import control
 
 from apac_mj import suite
-from apac_mj.kinematics import Sizes
+from apac_mj.layout import Sizes
 from apac_mj.suite import planar_arm
 from apac_mj.suite.task_spec import TaskSpec
 from apac_mj.types import Observation
@@ -142,6 +143,20 @@ class VecEnv:
         schedule (None)."""
         for env in self.envs:
             env.task.set_mapping_override(remapped)
+
+    @contextlib.contextmanager
+    def overridden(self, cue: int | None = None, remapped: bool | None = None) -> Iterator["VecEnv"]:
+        """Within the block, every member's next episodes show ``cue`` (None: drawn) under the ``remapped``
+        mapping (None: the task's schedule); both overrides are cleared on leaving, also on an error."""
+        try:
+            if remapped is not None:
+                self.set_mapping_override(remapped)
+            if cue is not None:
+                self.set_cue_override(np.full(self.E, cue))
+            yield self
+        finally:
+            self.set_cue_override(None)
+            self.set_mapping_override(None)
 
     def cues(self) -> np.ndarray:
         """``[E]`` each member's cue this episode (-1: not a cued task)."""

@@ -133,9 +133,12 @@ def coerce(value: Any, annotation: Any, where: str) -> Any:
 def _tuple(value: Any, args: tuple, where: str) -> tuple:
     if isinstance(value, str):
         value = [v for v in value.strip("()[] ").split(",") if v.strip()]
+    variable = len(args) == 2 and args[1] is Ellipsis
+    if variable and isinstance(value, (int, float)) and not isinstance(value, bool):
+        value = [value]  # one number of a list of any length: ``practice=1000`` as ``practice=1000,``
     if not isinstance(value, (list, tuple)):
         raise OverrideError(f"{where} must be a list (e.g. [64, 64] or 64,64), got {value!r}")
-    if len(args) == 2 and args[1] is Ellipsis:
+    if variable:
         return tuple(coerce(v, args[0], where) for v in value)
     if len(value) != len(args):
         raise OverrideError(f"{where} must have {len(args)} entries, got {list(value)!r}")
