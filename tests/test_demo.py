@@ -4,17 +4,6 @@ from __future__ import annotations
 from apac_mj.demo import run_demo
 
 
-def test_demo_runs_grid_report_and_recording(tmp_path):
-    said = []
-    result = run_demo("smoke", tmp_path / "demo", ["conditions=changing_target", "episodes=2",
-                                                   "tests.generalization=false", "tests.limit=2"],
-                      record_episodes=1, progress=False, say=said.append)
-    assert said and "preset 'smoke'" in said[0]
-    assert (result.report_dir / "report.md").is_file() and list(result.report_dir.glob("fig*.png"))
-    assert result.recording == tmp_path / "demo" / "apac__changing_target.rrd"
-    assert result.recording.stat().st_size > 0 and result.wall_s > 0
-
-
 def test_the_demo_records_enough_episodes_for_its_steps(tmp_path):
     """By default the demo records as many episodes as take ``record_steps`` steps (it was 3 episodes: 8
     frames for a trained agent): the recording then has at least that many step frames."""

@@ -271,8 +271,10 @@ def test_demo_writes_report_and_recording(tmp_path: Path, stack: None, capsys) -
                  "--set", "conditions=changing_target", "--set", "tests.generalization=false"]) == 0
     printed = capsys.readouterr().out
     rrd = out / "apac__changing_target.rrd"
+    assert "preset 'smoke'" in printed.splitlines()[0]
     assert rrd.stat().st_size > 10_000 and f"recording: {rrd}" in printed
     assert (out / "report" / "report.md").exists() and f"{out / 'report'}/fig*.png" in printed
+    assert list((out / "report").glob("fig*.png"))
 
 
 @pytest.mark.parametrize("command", [["evaluate"], ["record", "--run"]])

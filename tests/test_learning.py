@@ -20,7 +20,8 @@ Also (about 8 s): APAC with the paper's 100-episode planning phase on static_tar
 
 Slow (-m slow; about 2 minutes each on 2 cores): DDPG alone on static_target with the
 paper's actor and critic sizes, every seed >= 90% of its last 50 episodes; the same with
-the separable critic fails; DDPG on changing targets learns. CI keeps the critic's
+the separable critic fails; DDPG on changing targets learns. Also slow (about 21 s): habit
+formation (an extension) makes APAC mostly habitual. CI keeps the critic's
 state-action interaction as a property (tests/test_update.py).
 """
 from __future__ import annotations
@@ -81,6 +82,7 @@ def test_apac_after_paper_planning_phase(tmp_path):
     assert share >= 0.3, share
 
 
+@pytest.mark.slow  # 21 s of CI's 387 s: an extension's learning check; the paper's three stay in CI
 def test_habit_formation_makes_apac_mostly_habitual(tmp_path):
     """habit_distillation_weight (an extension): APAC's actor imitates the planner and takes over.
     3 seeds x 100 episodes on changing targets (50 planning), weight 100 against weight 0: the habit share
