@@ -148,6 +148,7 @@ def candidates(loop: EpisodeLoop, cfg: TrainConfig, variant: str, repeats: int, 
     candidate makes when committed to (the habit; the plan with k = 1..K iterations per step), executed in MuJoCo
     to the episode's end; each classified by where the hand ended."""
     cues, E, K = loop.env.spec.cues, loop.env.E, loop.planner.max_iterations
+    targets = cues.mapping(True), cues.mapping(False)  # now (remapped) and before: fixed for the whole test
     shape = (E, cues.n, repeats)
     out = {"habit": np.zeros(shape, int), "plan": np.zeros((*shape, K), int), "rule_habit": np.zeros(shape, bool),
            "rule_iterations": np.zeros(shape, int), "hand_habit": np.zeros((*shape, 2)),
@@ -155,19 +156,20 @@ def candidates(loop: EpisodeLoop, cfg: TrainConfig, variant: str, repeats: int, 
     for c in range(cues.n):
         with loop.env.overridden(cue=c, remapped=True):
             for r in range(repeats):
-                for name, value in _trial(loop, cfg, variant, c).items():
+                for name, value in _trial(loop, cfg, variant, c, targets).items():
                     out[name][:, c, r] = value
     return Candidates(out["habit"], out["plan"], np.full(shape, OUTCOMES.index("timeout")), out["rule_habit"],
                       out["rule_iterations"], rule_ms(variant, cfg.agent, timing, loop.arbitrator),
                       {"habit": out["hand_habit"], "plan": out["hand_plan"]})
 
 
-def _trial(loop: EpisodeLoop, cfg: TrainConfig, variant: str, cue: int) -> dict[str, np.ndarray]:
+def _trial(loop: EpisodeLoop, cfg: TrainConfig, variant: str, cue: int,
+           targets: tuple[np.ndarray, np.ndarray]) -> dict[str, np.ndarray]:
     """One trial of every member with ``cue`` shown (the overrides set): the rule's decision at its first step,
-    each candidate's movement (where the hand ends) and its outcome."""
-    cues, E, K = loop.env.spec.cues, loop.env.E, loop.planner.max_iterations
-    now, before = cues.mapping(True), cues.mapping(False)
-    radius = _response_radius(now)
+    each candidate's movement (where the hand ends) and its outcome; ``targets``: the cues' targets now and
+    before the remap."""
+    E, K = loop.env.E, loop.planner.max_iterations
+    (now, before), radius = targets, _response_radius(targets[0])
     st = loop.begin(np.ones(E, dtype=bool))
     start = st.state[:, END].cpu().numpy()
     ctx = st.context(np.full(E, cfg.episodes), loop.agent, loop.zone_radius, loop.planner, habit_action=True)
