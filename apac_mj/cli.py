@@ -26,6 +26,7 @@ COMMAND_MODULES = [
     "apac_mj.commands.record",
     "apac_mj.commands.screenshot",
     "apac_mj.commands.forced_response",
+    "apac_mj.commands.zoo",
 ]
 
 

@@ -13,6 +13,7 @@ from typing import Any, Callable
 import numpy as np
 
 from apac_mj import rules
+from apac_mj.util.memory import check_planner
 from apac_mj.util.overrides import MAX_SEEDS, SEED_LIMIT
 
 
@@ -79,6 +80,11 @@ class AgentConfig:
     batch_size: int = 500
     #: Gradient updates per environment step (paper: one).
     updates_per_step: int = 1
+    #: Extra Adam steps of the inverse model alone after every update, each on a fresh minibatch, as
+    #: ``mpc.model_updates`` trains the dynamics model (paper: 0; issue 41's equal-budget comparison: 4).
+    inverse_updates: int = 0
+    #: The inverse model's L2 weight decay; None: ``weight_decay`` (the paper's 1e-3 on every network).
+    inverse_weight_decay: float | None = None
 
     # -- exploration: Ornstein-Uhlenbeck noise on both proposals ---------------
     ou_theta: float = 0.15
@@ -199,6 +205,7 @@ class AgentConfig:
         if self.batch_size < 1 or self.replay_size < 1:
             raise ValueError("batch_size and replay_size must be >= 1")
         object.__setattr__(self, "params", rules.resolve(self.params))  # frozen: the one completion
+        _check_planner_numbers(self.params.get("mpc"))
 
 
 #: (field, low, high) of AgentConfig's numbers beyond finiteness: degrees within a turn, weights and
@@ -208,7 +215,21 @@ _RANGES = (("action_scale", 1e-6, 360.0), ("babbling_scale", 0.0, 360.0), ("ou_s
            ("weight_decay", 0.0, 1.0), ("feasibility_weight", 0.0, 1e6), ("habit_distillation_weight", 0.0, 1e6),
            ("plane_scale", 1e-6, 1e4), ("planning_episodes", 0, 10**9), ("habit_first_steps", 0, 10**9),
            ("babbling_episodes", 0, 10**9), ("updates_per_step", 1, 10**3), ("batch_size", 1, 10**8),
-           ("replay_size", 1, 10**10))
+           ("replay_size", 1, 10**10), ("inverse_updates", 0, 10**3), ("inverse_weight_decay", 0.0, 1.0))
+
+
+#: The MPC planner's numbers' upper bounds (agent.mpc; rules.MPCParams checks the lower ones): spreads in tanh
+#: units (the samples are clipped to [-1, 1], so a spread beyond 100 only saturates them) and the MPPI temperature
+#: (weights exp(temperature x value difference) in float32: 1e308 overflowed it).
+_PLANNER_MAX = {"habit_noise": 100.0, "min_std": 100.0, "max_std": 100.0, "temperature": 1e6}
+
+
+def _check_planner_numbers(mpc: Any) -> None:
+    """``agent.mpc``'s spreads and temperature within :data:`_PLANNER_MAX` (a ValueError naming the field)."""
+    for name, high in _PLANNER_MAX.items():
+        v = getattr(mpc, name, None)
+        if v is not None and v > high:
+            raise ValueError(f"agent.mpc.{name} must be at most {high:g}, got {v!r}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -260,6 +281,7 @@ class TrainConfig:
             raise ValueError(f"actuation must be one of {ACTUATIONS}, got {self.actuation!r}")
         if not isinstance(self.agent, AgentConfig):
             raise ValueError(f"agent must be an AgentConfig, got {type(self.agent).__name__}")
+        check_planner(self.agent, len(self.seeds))  # agent.mpc's work per decision and memory (F8)
 
 
 def _short(values: list[Any], n: int = 10) -> str:
@@ -297,7 +319,9 @@ MOVED = {"arbitration_window": (("uncertainty", "window"), ("reliability", "wind
 ADDED = {"bf16_networks": list(TRAINED_NETWORKS),
          # releases up to 192b762 learned the measured joint change on every joint-angle plant (torque plants:
          # the command, but their networks predate the velocity inputs and cannot be loaded any more)
-         "executed_action": "joint_change"}
+         "executed_action": "joint_change",
+         # issue 41: the inverse model's own budget; before it, one step and the agent's weight_decay
+         "inverse_updates": 0, "inverse_weight_decay": None}
 
 #: Fields added to a parameter table after it was released: ``table -> field -> f(agent dict)``, the value that
 #: behaves as that release did. Issue 28's ``mpc`` table had no ``model_weight_decay`` (its dynamics model was

@@ -50,7 +50,8 @@ class AgentKind:
     name: str
     #: How figures and tables call it.
     label: str
-    #: Its matplotlib colour in figures.
+    #: Its colour in figures: kept where it is one of the colour-blind-safe palette's (``report.labels.SAFE_PALETTE``)
+    #: and no earlier kind has it; otherwise the figures give the kind the palette's first free colour.
     color: str
     #: ``AgentConfig -> Arbitrator``: builds the rule that decides between habit and planning.
     arbitrator: Callable[[AgentConfig], Arbitrator]
@@ -159,16 +160,16 @@ def _builtin(name: str, beyond: bool = False) -> Callable[[AgentConfig], Arbitra
     return make
 
 
-register(AgentKind("ddpg", "DDPG", "tab:orange", _builtin("AlwaysHabit"), uses_planner=False,
+register(AgentKind("ddpg", "DDPG", "#E69F00", _builtin("AlwaysHabit"), uses_planner=False,
                    acts_occluded=False, occluded_reason="DDPG has no forward model to move on"))
-register(AgentKind("spac", "SPAC", "tab:green", _builtin("AlwaysPlan"), uses_habit=False))
-register(AgentKind("apac", "APAC", "tab:blue", _builtin("DeltaArbitrator")))
+register(AgentKind("spac", "SPAC", "#009E73", _builtin("AlwaysPlan"), uses_habit=False))
+register(AgentKind("apac", "APAC", "#0072B2", _builtin("DeltaArbitrator")))
 # Beyond the paper (docs/arbitrators.md): APAC's two systems under other arbitration rules.
-register(AgentKind("apac_uncertainty", "APAC-U (uncertainty)", "tab:pink",
+register(AgentKind("apac_uncertainty", "APAC-U (uncertainty)", "#CC79A7",
                    _builtin("UncertaintyArbitrator", beyond=True), params=UncertaintyParams))
-register(AgentKind("apac_reliability", "APAC-R (reliability)", "sienna",
+register(AgentKind("apac_reliability", "APAC-R (reliability)", "#D55E00",
                    _builtin("ReliabilityArbitrator", beyond=True), params=ReliabilityParams))
-register(AgentKind("apac_speed_accuracy", "APAC-SA (speed-accuracy)", "crimson",
+register(AgentKind("apac_speed_accuracy", "APAC-SA (speed-accuracy)", "#56B4E9",
                    _builtin("SpeedAccuracyArbitrator", beyond=True), params=SpeedAccuracyParams))
 
 
@@ -182,14 +183,14 @@ def _vision_aware(cfg: AgentConfig) -> Arbitrator:
     return VisionAwareArbitrator(cfg, base=get(params.base).arbitrator(base_cfg))
 
 
-register(AgentKind("apac_vision", "APAC-V (vision-aware)", "darkturquoise", _vision_aware, params=VisionAwareParams))
+register(AgentKind("apac_vision", "APAC-V (vision-aware)", "#332288", _vision_aware, params=VisionAwareParams))
 # Beyond the paper (docs/agent.md "Planning through the model"): MPC through the learned forward model as the
 # planning system, always (SPAC-MPC), under the paper's delta rule (APAC-MPC), and under a graded arbitrator that
 # weighs the expected gain of each planning iteration against its cost (value of computation).
-register(AgentKind("spac_mpc", "SPAC-MPC", "olive", _builtin("AlwaysPlan"), uses_habit=False, params=MPCParams,
+register(AgentKind("spac_mpc", "SPAC-MPC", "#999933", _builtin("AlwaysPlan"), uses_habit=False, params=MPCParams,
                    planner="mpc"))
-register(AgentKind("apac_mpc", "APAC-MPC", "navy", _builtin("DeltaArbitrator"), params=MPCParams, planner="mpc"))
-register(AgentKind("apac_voc", "APAC-VOC (graded)", "darkorange",
+register(AgentKind("apac_mpc", "APAC-MPC", "#882255", _builtin("DeltaArbitrator"), params=MPCParams, planner="mpc"))
+register(AgentKind("apac_voc", "APAC-VOC (graded)", "#44AA99",
                    _builtin("ValueOfComputationArbitrator", beyond=True), params=ValueOfComputationParams,
                    planner="mpc"))
 #: The kinds registered here (the built-in ones: they cannot be removed).

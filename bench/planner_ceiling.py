@@ -7,12 +7,13 @@
 samples, through the true physics). The agents plan with :class:`apac_mj.agent.planner.MPCPlanner` (MPPI, 32
 candidates, 4 iterations at the defaults) through a *learned* model, and close the horizon with a learned
 critic. When an agent falls short of the ceiling, this bench tells which part is short: it runs the agent's
-planner class itself -- its sampling, elites, temperature, warm start, anytime best, the same
-``agent.mpc`` table and random streams -- with each imagined step taken on the environment's own physics
-(``bench.ceiling.Model``: the task's ``before_step`` and the physics' sub-steps, from an ``MjData`` snapshot)
-instead of the learned model. No networks: the habit's candidates are the zero action (no torque), and the
-terminal value is zero (``--value zero``) or minus the hand's distance it would travel in one more step
-(``--value speed``: the ceiling's own speed term, weight 1).
+planner class itself, unchanged -- its valuation (``MPCPlanner.rollout``: discount, imagined arrival,
+terminal value), sampling, elites, temperature, warm start, anytime best, the same ``agent.mpc`` table and
+random streams -- with each imagined step taken on the environment's own physics (``TrueModelAgent.imagine``:
+``bench.ceiling.Model``'s step, the task's ``before_step`` and the physics' sub-steps, from an ``MjData``
+snapshot per sequence) instead of the learned model. No networks: the habit's candidates are the zero action
+(no torque), and the terminal value is zero (``--value zero``) or minus the hand's distance it would travel in
+one more step (``--value speed``: the ceiling's own speed term, weight 1).
 
 Rows: task, the ``mpc`` settings, successes of the grid targets (the 100 angle-grid targets on the plane, the
 project's test), mean steps, mean final distance, seconds. The same seed gives the same numbers.
@@ -27,6 +28,7 @@ import types
 from pathlib import Path
 from typing import Any, Sequence
 
+import mujoco
 import numpy as np
 import torch
 
@@ -34,21 +36,35 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import ceiling  # noqa: E402  (bench/ceiling.py: the environments, their true model, the grid targets)
 
 from apac_mj.agent.planner import MPCPlanner  # noqa: E402
+from apac_mj.layout import Sizes, StateLayout  # noqa: E402
 from apac_mj.rules import MPCParams  # noqa: E402
-from apac_mj.types import END, TARGET, ArbitrationContext  # noqa: E402
+from apac_mj.types import ArbitrationContext  # noqa: E402
 
 FIELDS = ("condition", "value", "horizon", "candidates", "elites", "iterations", "habit_candidates", "temperature",
           "min_std", "max_std", "episodes", "successes", "success_pct", "mean_steps", "final_distance_cm", "seconds")
 
 
 class TrueModelAgent:
-    """What :class:`MPCPlanner` asks of an agent, with no networks: the zero action as the habit, no critic
-    (the terminal value is set by :class:`TrueModelPlanner`), actions in tanh units scaled to the torque bound."""
+    """What :class:`MPCPlanner` asks of an agent, with MuJoCo's physics as its model and no networks.
 
-    def __init__(self, model: ceiling.Model, gamma: float = 0.99) -> None:
+    ``imagine`` steps each imagined sequence on the environment's own physics (``ceiling.Model.step``) from its
+    own ``MjData`` snapshot: a batch that is not the last one returned starts every sequence from the state
+    ``Model.save`` kept; each step puts the physics back where it was. The habit is the zero action (no torque),
+    actions are tanh units scaled to the torque bound, and ``value`` is the terminal value: 0 (``"zero"``) or
+    minus the distance the hand would travel in one more step (``"speed"``). :meth:`MPCPlanner.rollout` itself
+    discounts, stops at an imagined arrival (the state's joint speeds, as the agent reads them) and adds it."""
+
+    def __init__(self, model: ceiling.Model, value: str = "zero", gamma: float = 0.99) -> None:
         if not model.torque:
             raise ValueError("planner_ceiling runs on the torque tasks (the agent's tanh units are torques there)")
+        if value not in ("zero", "speed"):
+            raise ValueError(f"value must be 'zero' or 'speed', got {value!r}")
         self.cfg, self.bound = types.SimpleNamespace(gamma=gamma), float(model.high[0])
+        self.model, self.value_kind = model, value
+        self.layout = StateLayout(Sizes(state_dim=8, extra_scale=(1.0, 1.0), action_bound=self.bound,
+                                        angle_actions=False))
+        self._snapshots: list[mujoco.MjData] = []
+        self._last: torch.Tensor | None = None
 
     def habit_u(self, s: torch.Tensor) -> torch.Tensor:
         return torch.zeros(*s.shape[:-1], 2)
@@ -59,38 +75,44 @@ class TrueModelAgent:
     def executable(self, a: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
         return a
 
+    def observe(self) -> torch.Tensor:
+        """The physics now as the agent's state ``[8]``: hand, elbow, target (cm), joint velocities (deg/s)."""
+        ph = self.model.physics
+        return torch.as_tensor(np.concatenate([ph.end_effector(), ph.elbow(), ph.target(), ph.joint_velocities()]),
+                               dtype=torch.float32)
 
-class TrueModelPlanner(MPCPlanner):
-    """:class:`MPCPlanner` whose imagined steps are the environment's own (the physics restored per sequence)."""
-
-    def __init__(self, params: MPCParams, model: ceiling.Model, seed: int, value: str) -> None:
-        super().__init__(params, [seed], 2, model.zone, model.stop_speed)
-        self.model, self.value_kind = model, value
-
-    def rollout(self, agent: Any, state: torch.Tensor, u: torch.Tensor | None = None,
-                ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        H, gamma, m = self.p.horizon, agent.cfg.gamma, self.model
-        if u is None:
-            u = torch.zeros(state.shape[0], 1, H, 2)
-        E, B = u.shape[:2]
-        values, hands = torch.zeros(E, B), torch.zeros(E, B, H + 1, 2)
-        torques = (u * agent.bound).double().numpy()
-        for e in range(E):
-            for b in range(B):
-                m.restore()
-                hands[e, b, 0] = state[e, END]
-                v, alive = 0.0, 1.0
-                for t in range(H):
-                    d = m.step(torques[e, b, t])
-                    v -= gamma ** t * alive * d
-                    if alive and m.reached(d):
-                        alive = 0.0
-                    hands[e, b, t + 1] = torch.as_tensor(m.physics.end_effector())
-                if self.value_kind == "speed" and alive:
-                    v -= gamma ** H * float(np.hypot(*m.physics.hand_velocity())) * m.dt
-                values[e, b] = v
+    def imagine(self, s: torch.Tensor, a: torch.Tensor) -> torch.Tensor:
+        """The states ``[1, B, 8]`` after one environment step of the torques ``a`` ``[1, B, 2]`` from ``s``."""
+        if s.shape[0] != 1:
+            raise ValueError("TrueModelAgent plans for one member (one physics)")
+        m, B = self.model, s.shape[1]
+        fresh = s is not self._last
+        while len(self._snapshots) < B:
+            self._snapshots.append(mujoco.MjData(m._m))
+        nxt = torch.empty_like(s)
+        torques = a[0].double().numpy()
+        for b in range(B):
+            snap = self._snapshots[b]
+            mujoco.mj_copyData(m._d, m._m, m._saved if fresh else snap)
+            m.step(torques[b])
+            mujoco.mj_copyData(snap, m._m, m._d)
+            nxt[0, b] = self.observe()
         m.restore()
-        return values, hands, u
+        self._last = nxt
+        return nxt
+
+    def value(self, s: torch.Tensor) -> torch.Tensor:
+        """The terminal value of the imagined states ``s`` (the last batch :meth:`imagine` returned)."""
+        if self.value_kind == "zero":
+            return torch.zeros(s.shape[:-1])
+        if s is not self._last:
+            raise ValueError("the speed value reads the physics of the last imagined batch only")
+        m, out = self.model, torch.zeros(s.shape[:-1])
+        for b in range(s.shape[1]):
+            mujoco.mj_copyData(m._d, m._m, self._snapshots[b])
+            out[0, b] = -float(np.hypot(*m.physics.hand_velocity())) * m.dt
+        m.restore()
+        return out
 
 
 class PlannerController(ceiling.Controller):
@@ -101,15 +123,13 @@ class PlannerController(ceiling.Controller):
 
     def reset(self, model: ceiling.Model, rng: np.random.Generator) -> None:
         super().reset(model, rng)
-        self.agent = TrueModelAgent(model)
-        self.planner = TrueModelPlanner(self.params, model, int(rng.integers(2**31)), self.value)
+        self.agent = TrueModelAgent(model, self.value)
+        self.planner = MPCPlanner(self.params, [int(rng.integers(2**31))], 2, model.zone, model.stop_speed)
 
     def act(self) -> np.ndarray:
         m = self.model
         m.save()
-        ph = m.physics
-        state = torch.as_tensor(np.concatenate([ph.end_effector(), ph.elbow(), ph.target(),
-                                                ph.joint_velocities()]), dtype=torch.float32)[None]
+        state = self.agent.observe()[None]
         ctx = ArbitrationContext(episode=torch.zeros(1, dtype=torch.long), step=torch.zeros(1, dtype=torch.long),
                                  last_delta=torch.full((1,), float("nan")), state=state)
         proposal = self.planner.propose(self.agent, ctx, torch.full((1,), self.params.iterations))

@@ -13,6 +13,7 @@ assumes 3, ``apac_mj.types.PLANNING_COST``), and one MPC iteration against the h
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import statistics
 import time
 from typing import Callable
@@ -50,22 +51,29 @@ def setup(task: str, E: int, kind: str = "spac_mpc") -> tuple[Agent, MPCPlanner,
     return agent, planner, ctx
 
 
+def fresh(ctx: ArbitrationContext) -> ArbitrationContext:
+    """The context with a new state object (the same numbers), as every step of a run has: the planner's
+    per-state cache of the habit's rollout does not serve it, so a timed plan pays for the habit probe."""
+    return dataclasses.replace(ctx, state=ctx.state.clone())
+
+
 def timings(agent: Agent, planner: MPCPlanner, ctx: ArbitrationContext, rounds: int) -> dict[str, list[float]]:
-    """Seconds of each operation per round (interleaved)."""
+    """Seconds of each operation per round (interleaved); every planning call starts from a fresh state."""
     E, K = ctx.E, planner.max_iterations
-    ops: dict[str, Callable[[], object]] = {
-        "habit (actor)": lambda: agent.actor_action(ctx.state),
-        "inverse model": lambda: agent.inverse_action(ctx.state),
-        "habit probe": lambda: planner.rollout(agent, ctx.state),
-        **{f"MPC {k} iteration{'s' if k > 1 else ''}": (lambda k=k: planner.propose(agent, ctx, torch.full((E,), k)))
+    ops: dict[str, Callable[[ArbitrationContext], object]] = {
+        "habit (actor)": lambda c: agent.actor_action(c.state),
+        "inverse model": lambda c: agent.inverse_action(c.state),
+        "habit probe": lambda c: planner.probe(agent, c.state),
+        **{f"MPC {k} iteration{'s' if k > 1 else ''}": (lambda c, k=k: planner.propose(agent, c, torch.full((E,), k)))
            for k in range(1, K + 1)},
-        "training update": lambda: agent.update(torch.ones(E, dtype=torch.bool)),
+        "training update": lambda c: agent.update(torch.ones(E, dtype=torch.bool)),
     }
     out: dict[str, list[float]] = {name: [] for name in ops}
     for _ in range(rounds):
         for name, op in ops.items():
+            c = fresh(ctx)
             t = time.perf_counter()
-            op()
+            op(c)
             out[name].append(time.perf_counter() - t)
     return out
 

@@ -60,3 +60,39 @@ def deterministic(df):
     """``df`` without the measured wall-time columns (habit_seconds, planning_seconds) where it has them,
     for comparing two runs' frames exactly; plan_iterations, which repeats, is kept."""
     return df.drop(columns=[c for c in MEASURED_SECONDS if c in df.columns])
+
+
+# -- a planner's test double (test_planner, test_planner_properties, test_habit_candidates) ---------------
+
+class ExactPointHand:
+    """The exact model of a point hand: an action is ``scale`` cm per tanh unit per axis, always executable, and
+    the imagined hand (the state's END entries) moves by it. Subclasses give the habit (``habit_u``) and the
+    critic (``value``), and set ``cfg`` and ``layout``."""
+
+    scale = 2.0
+
+    def to_action(self, u: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
+        return u * self.scale
+
+    def executable(self, a: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
+        return a
+
+    def imagine(self, s: torch.Tensor, a: torch.Tensor) -> torch.Tensor:
+        from apac_mj.types import END
+
+        nxt = s.clone()
+        nxt[..., END] = s[..., END] + a
+        return nxt
+
+
+def fill_and_update(agent, seed: int = 2, transitions: int = 6):
+    """Add ``transitions`` random two-member transitions (a hand within 30 cm, joint velocities ~300 deg/s,
+    actions in [-2, 2]) to ``agent``'s replay and update the first member only; returns the agent."""
+    g = torch.Generator().manual_seed(seed)
+    for _ in range(transitions):
+        s = torch.cat([torch.rand(2, 6, generator=g) * 30, torch.randn(2, 2, generator=g) * 300], 1)
+        a = torch.rand(2, 2, generator=g) * 4 - 2
+        agent.replay.add(s, a, -torch.rand(2, generator=g), s + 1, torch.zeros(2), torch.ones(2, dtype=torch.bool),
+                         executed_action=a)
+    agent.update(torch.tensor([True, False]))
+    return agent

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from scipy import stats
 from conftest import bench_module
 
 
@@ -63,7 +64,8 @@ def test_per_seed_windows_and_the_after_effect_per_seed(dyn):
     summary = dyn.summarize(eff.reset_index(), ["agent", "condition", "effect"], ["error_cm"])
     after = summary[summary.effect == "after-effect"].iloc[0]
     assert after["mean"] == pytest.approx(3.0)  # per-seed after-effects 2, 3, 4
-    assert after.lo <= 3.0 <= after.hi and after.lo >= 2.0 and after.hi <= 4.0
+    half = stats.t.ppf(0.9875, 2) * 1.0 / np.sqrt(3)  # the report's interval: t at 97.5%, sd 1 over 3 seeds
+    assert (after.lo, after.hi) == pytest.approx((3.0 - half, 3.0 + half))
     assert after.seeds == 3 and after.per_seed == "0:2 1:3 2:4"
 
 

@@ -16,6 +16,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import torch
+from conftest import ExactPointHand, fill_and_update
 
 from apac_mj.agent.agent import Agent
 from apac_mj.agent.arbitrators import VOC_EDGES, ValueOfComputationArbitrator
@@ -29,7 +30,7 @@ ROOT = Path(__file__).resolve().parents[1]
 TINY = dict(actor_hidden=(16, 16), critic_hidden=(16, 16), forward_hidden=(16, 16), inverse_hidden=(16, 16))
 
 
-class PointHand:
+class PointHand(ExactPointHand):
     """An agent whose model is exact: the hand moves by the action (cm, at most ``scale`` per axis), the habit
     does nothing, the critic values every state 0."""
 
@@ -38,17 +39,6 @@ class PointHand:
         self.scale = scale
         self.sizes = Sizes(state_dim=8, extra_scale=(1.0, 1.0))  # two extra entries (joint velocities), no cue
         self.layout = StateLayout(self.sizes)
-
-    def to_action(self, u: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
-        return u * self.scale
-
-    def executable(self, a: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
-        return a
-
-    def imagine(self, s: torch.Tensor, a: torch.Tensor) -> torch.Tensor:
-        nxt = s.clone()
-        nxt[..., END] = s[..., END] + a
-        return nxt
 
     def habit_u(self, s: torch.Tensor) -> torch.Tensor:
         return torch.zeros(*s.shape[:-1], 2)
@@ -322,16 +312,8 @@ def test_the_extra_model_steps_move_only_the_dynamics_model():
     sizes = Sizes(state_dim=8, extra_scale=(500.0, 500.0), action_bound=2.0, angle_actions=False)
 
     def updated(extra: int) -> Agent:
-        agent = mpc_agent(AgentConfig(kind="spac_mpc", **TINY, batch_size=4, params={"mpc": {"model_updates": extra}}),
-                      [0, 1], sizes=sizes)
-        g = torch.Generator().manual_seed(2)
-        for _ in range(6):
-            s = torch.cat([torch.rand(2, 6, generator=g) * 30, torch.randn(2, 2, generator=g) * 300], 1)
-            a = torch.rand(2, 2, generator=g) * 4 - 2
-            agent.replay.add(s, a, -torch.rand(2, generator=g), s + 1, torch.zeros(2), torch.ones(2, dtype=torch.bool),
-                             executed_action=a)
-        agent.update(torch.tensor([True, False]))
-        return agent
+        return fill_and_update(mpc_agent(AgentConfig(kind="spac_mpc", **TINY, batch_size=4,
+                                                     params={"mpc": {"model_updates": extra}}), [0, 1], sizes=sizes))
 
     plain, more = updated(0), updated(2)
     for name in ("actor", "critic", "forward_model", "inverse_model"):
@@ -413,3 +395,26 @@ def test_the_planning_bench_times_every_operation_side_by_side():
     assert set(times) == {"habit (actor)", "inverse model", "habit probe", "MPC 1 iteration", "MPC 2 iterations",
                           "MPC 3 iterations", "MPC 4 iterations", "training update"}
     assert all(len(v) == 2 and min(v) > 0 for v in times.values())
+
+
+def test_every_timed_plan_of_the_planning_bench_rolls_the_habit_out_from_a_fresh_state():
+    """The bench's rows share no state object: each MPC row and the probe row roll the habit out themselves (a
+    run's every step has a new state, so the planner's per-state cache never serves a decision's first plan)."""
+    from conftest import bench_module
+
+    bench = bench_module("planning")
+    agent, planner, ctx = bench.setup("changing_target", 2)
+    habit_rollouts, states = [], []
+    rollout = planner.rollout
+
+    def counted(agent_, state, u=None):
+        if u is None:
+            habit_rollouts.append(state)
+        states.append(state)
+        return rollout(agent_, state, u)
+
+    planner.rollout = counted
+    bench.timings(agent, planner, ctx, rounds=2)
+    assert len(habit_rollouts) == 2 * (1 + planner.max_iterations)
+    assert all(s is not ctx.state for s in states)
+    assert len({id(s) for s in habit_rollouts}) == len(habit_rollouts)

@@ -256,7 +256,7 @@ def test_record_says_when_agent_or_task_differ_from_the_run(tiny_run, tmp_path, 
     args = ["record", "--run", str(run_dir), "--episodes", "1", "--out", str(tmp_path / "o.rrd")]
     assert main(args) == 0
     assert "note:" not in capsys.readouterr().err
-    assert main(args + ["--agent", other, "--task", "static_target"]) == 0
+    assert main(args + ["--agent", other, "--task", "static_target", "--force"]) == 0
     err = capsys.readouterr().err
     assert f"trained {trained['agent']['kind']}; recording its networks arbitrated as {other}" in err
     assert f"trained on {trained['task']}; recording on static_target" in err

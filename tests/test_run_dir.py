@@ -133,7 +133,7 @@ def test_checkpoints_rotate_and_fall_back(tmp_path, capsys):
 def test_a_damaged_final_checkpoint_unfinishes_the_run(tmp_path, capsys):
     run = RunDir(tmp_path)
     run.write_config({"episodes": 4}, None)
-    run.save_checkpoint(fake_checkpoint())
+    run.save_checkpoint(fake_checkpoint(episode=4))  # every member at the run's episode count: final
     run.mark_finished()
     assert run.check_finished() and run.finished()
     latest = run.checkpoints / rd.LATEST

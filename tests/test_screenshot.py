@@ -82,3 +82,73 @@ def test_a_real_screenshot_has_no_tooltip_over_the_plane(tmp_path: Path) -> None
     png = S.screenshot(rrd, tmp_path / "s.png")
     assert dark_fraction_over_plane(png) < 0.03
     assert sorted(p.name for p in tmp_path.iterdir()) == ["r.rrd", "s.png"]
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory: pytest.TempPathFactory) -> bytes:
+    """The bytes of a one-episode recording (made once for the module)."""
+    from apac_mj.recording.record import record
+
+    return record(tmp_path_factory.mktemp("rec") / "good.rrd", episodes=1, progress=False).rrd.read_bytes()
+
+
+def _a_recording(tmp_path: Path, recorded: bytes) -> Path:
+    (tmp_path / "good.rrd").write_bytes(recorded)
+    return tmp_path / "good.rrd"
+
+
+@pytest.mark.parametrize("damage", ["empty", "first 1000 bytes", "random bytes", "json named .rrd", "cut short"])
+def test_a_file_the_viewer_cannot_load_is_refused_before_it_starts(tmp_path: Path, damage: str, recorded: bytes,
+                                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    """F6 (issue 45): the viewer showed its error page for these, and its screenshot was reported written."""
+    good = _a_recording(tmp_path, recorded).read_bytes()
+    data = {"empty": b"", "first 1000 bytes": good[:1000], "random bytes": np.random.default_rng(0).bytes(200_000),
+            "json named .rrd": b'{"episodes": 2}\n', "cut short": good[: len(good) // 2]}[damage]
+    bad = tmp_path / "bad.rrd"
+    bad.write_bytes(data)
+    monkeypatch.setattr(S, "viewer_binary", lambda: pytest.fail("the viewer was started"))
+    monkeypatch.setattr(S.shutil, "which", lambda name: f"/usr/bin/{name}")  # as if xvfb-run were there
+    with pytest.raises(S.NotARecording, match=rf"{bad} is not a Rerun recording the viewer can show"):
+        S.screenshot(bad, tmp_path / "shot.png")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.rrd", "good.rrd"]
+
+
+def test_the_cli_refuses_an_unreadable_recording_with_exit_2(tmp_path: Path,
+                                                             capsys: pytest.CaptureFixture[str]) -> None:
+    (tmp_path / "empty.rrd").write_bytes(b"")
+    assert main(["screenshot", str(tmp_path / "empty.rrd"), "--out", str(tmp_path / "s.png")]) == 2
+    assert "empty.rrd is not a Rerun recording" in capsys.readouterr().err
+    assert not (tmp_path / "s.png").exists()
+
+
+@pytest.mark.parametrize("timeout", [0.0, -1.0, float("nan")])
+def test_a_timeout_that_is_not_positive_is_refused(tmp_path: Path, timeout: float, recorded: bytes) -> None:
+    with pytest.raises(ValueError, match="--timeout must be a positive number of seconds"):
+        S.screenshot(_a_recording(tmp_path, recorded), tmp_path / "s.png", timeout_s=timeout)
+
+
+def _processes_naming(text: str) -> list[str]:
+    """Command lines of running (not zombie) processes that contain ``text``."""
+    found = []
+    for proc in Path("/proc").iterdir():
+        try:
+            if proc.name.isdigit() and (proc / "stat").read_text().split(")")[-1].split()[0] != "Z":
+                args = (proc / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+                found += [args] if text in args else []
+        except OSError:
+            continue
+    return found
+
+
+@pytest.mark.skipif(shutil.which("xvfb-run") is None, reason="needs xvfb-run")
+def test_a_timeout_ends_xvfb_and_the_viewer_and_leaves_no_file(tmp_path: Path, recorded: bytes) -> None:
+    """F11 (issue 45): a timeout killed xvfb-run only; Xvfb and the viewer went on, and the viewer saved
+    NAME.partial.png into the output folder later."""
+    rrd = _a_recording(tmp_path, recorded)
+    out = tmp_path / "shots"
+    out.mkdir()
+    with pytest.raises(TimeoutError, match="did not save a screenshot"):
+        S.screenshot(rrd, out / "s.png", (1401, 801), timeout_s=0.5)
+    screen = "x".join(map(str, S.geometry((1401, 801)).screen))
+    assert _processes_naming(str(out / "s.partial.png")) == [] and _processes_naming(screen) == []
+    assert list(out.iterdir()) == []

@@ -156,3 +156,26 @@ def test_paper_tasks_keep_the_zone_criterion():
             inside = env.physics.distance_to_target() <= env.task.spec.zone_radius
             assert (ts.last() and ts.discount == 0.0) == inside
             assert env.task.reached(env.physics) == inside
+
+
+def test_the_frozen_test_counts_a_stop_task_success_only_when_stopped():
+    """The test's ``success`` is the task's criterion: a hand inside the zone but still moving faster than
+    stop_speed at the end is a failure on the stop task (issue 41: it was counted as a success), and a success on
+    the paper's criterion; the occluded protocol's unreachable zone is not what it reads."""
+    from apac_mj.run.evaluate import reached
+    from apac_mj.suite.task_spec import load_task
+    from apac_mj.suite.vec_env import VecEnv
+
+    env = VecEnv(load_task(STOP), [0], "servo")  # the task file's plant says torque
+    member = env.envs[0]
+    member.task.set_target_override((12.0, 15.0))
+    member.reset()
+    member.step(np.array([0.01, 0.0]))  # inside the zone, moving
+    d, zone, stop = float(env.distances()[0]), load_task(STOP).zone_radius, load_task(STOP).stop_speed
+    assert d <= zone and not env.stopped(stop)[0]
+    assert reached(env, 0, d, zone, stop) is False
+    assert reached(env, 0, d, zone, None) is True  # the paper's criterion: inside the zone is enough
+    ph = member.physics
+    ph.data.qvel[ph.ids.qvel] = 0.0
+    assert env.stopped(stop)[0] and reached(env, 0, d, zone, stop) is True
+    assert reached(env, 0, zone + 0.1, zone, stop) is False

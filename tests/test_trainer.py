@@ -148,7 +148,7 @@ def test_cli_train_then_evaluate(tmp_path, capsys):
     assert '"status": "trained"' in capsys.readouterr().out
     assert main(args + tiny) == 0  # finished run: returns at once, and says so
     assert '"status": "already finished; nothing trained"' in capsys.readouterr().out
-    assert main(["evaluate", str(run), "--limit", "2", "--no-progress"]) == 0
+    assert main(["evaluate", str(run), "--limit", "2", "--no-progress", "--json"]) == 0
     out = capsys.readouterr().out
     assert '"success_rate"' in out and (run / "eval" / "grid.parquet").is_file()
     assert main(["train", "--seeds", "3-1", "--out", str(tmp_path / "x")]) == 2

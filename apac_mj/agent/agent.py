@@ -119,6 +119,8 @@ class Agent:
         #: The losses :meth:`update` reports, in the order of metrics.parquet's ``<name>_loss`` columns.
         self.loss_names: tuple[str, ...] = LOSSES
         decay = {n: cfg.weight_decay for n in self.trained}  # the paper's weight decay on its own networks
+        if cfg.inverse_weight_decay is not None:
+            decay["inverse_model"] = cfg.inverse_weight_decay
         if dynamics is not None:
             self.model_updates = dynamics.model_updates
             self.dynamics_model = build_dynamics_model(dynamics.model_hidden, init, A, X,
@@ -241,28 +243,41 @@ class Agent:
         self._soft_update(members)
         for _ in range(self.model_updates):
             self._model_step(self.replay.sample(self.cfg.batch_size, members), members)
+        for _ in range(self.cfg.inverse_updates):
+            self._model_step(self.replay.sample(self.cfg.batch_size, members), members, "inverse_model")
         keep = torch.zeros(self.E, dtype=torch.bool, device=self.device)
         keep[members] = True
         return {name: torch.where(keep, loss, nan) for name, loss in losses.items()}
 
-    def _model_step(self, batch: dict[str, torch.Tensor], members: Sequence[int]) -> None:
-        """One more Adam step of the dynamics model alone on ``batch`` for ``members`` (``mpc.model_updates``):
-        every other network's per-member views get no gradient, so Adam leaves them untouched."""
+    def _model_step(self, batch: dict[str, torch.Tensor], members: Sequence[int],
+                    net: str = "dynamics_model") -> None:
+        """One more Adam step of the model ``net`` alone on ``batch`` for ``members`` (the dynamics model:
+        ``mpc.model_updates``; the inverse model: ``inverse_updates``): every other network's per-member views
+        get no gradient, so Adam leaves them untouched."""
         for views in self._views.values():
             for vs in views:
                 for v in vs:
                     v.grad = None
-        self.dynamics_model.zero_grad(set_to_none=True)
+        model = getattr(self, net)
+        model.zero_grad(set_to_none=True)
         with autocast(self.device.type, self.precision):
-            loss = self._dynamics_loss(self.inputs.state(batch["state"]), batch["action"], batch["next_state"])
+            x = self.inputs.state(batch["state"])
+            loss = self._dynamics_loss(x, batch["action"], batch["next_state"]) if net == "dynamics_model" \
+                else self._inverse_loss(x, batch)
         weight = torch.zeros(self.E, device=self.device)
         weight[list(members)] = 1.0
         (loss * weight).sum().backward()
         on = set(members)
-        for p, vs in zip(self.dynamics_model.parameters(), self._views["dynamics_model"]):
+        for p, vs in zip(model.parameters(), self._views[net]):
             for k, (v, g) in enumerate(zip(vs, p.grad.unbind(0))):
                 v.grad = g if k in on else None
         self.optimizer.step()
+
+    def _inverse_loss(self, x: torch.Tensor, b: dict[str, torch.Tensor]) -> torch.Tensor:
+        """The inverse model's error ``[E]``: its action for the reached hand against the executed action."""
+        with self._precision("inverse_model"):
+            u = self.inverse_model(self.inputs.inverse_input(x, self.inputs.pos(b["next_state"][..., END]))).float()
+        return (self.to_action(u, b["state"]) - b["executed_action"]).pow(2).mean((1, 2))
 
     def _dynamics_loss(self, x: torch.Tensor, a: torch.Tensor, s2: torch.Tensor) -> torch.Tensor:
         """The dynamics model's error ``[E]`` (:func:`~apac_mj.agent.networks.dynamics_loss`) from the
@@ -318,12 +333,10 @@ class Agent:
             actor_loss = actor_loss + cfg.feasibility_weight * excess.pow(2).sum(-1).mean(1)
         with self._precision("forward_model"):
             arm_next = self.forward_model(inputs.model_input(x, a)).float()
-        with self._precision("inverse_model"):
-            u_inv = self.inverse_model(inputs.inverse_input(x, inputs.pos(s2[..., END]))).float()
         out = {"critic": (y - q).pow(2).mean(1),
                "actor": actor_loss,
                "forward": self._forward_error(arm_next, s2).pow(2).mean((1, 2)),
-               "inverse": (self.to_action(u_inv, s) - b["executed_action"]).pow(2).mean((1, 2))}
+               "inverse": self._inverse_loss(x, b)}
         if self.dynamics_model is not None:
             out["dynamics"] = self._dynamics_loss(x, a, s2)
         return out

@@ -7,9 +7,9 @@ goal, re-asked every step. :class:`MPCPlanner` plans ``horizon`` steps ahead thr
 (the agent's learned dynamics: ``[arm, extra, action] -> [arm, extra]``), batched ``[E, candidates, horizon]``:
 
 * each iteration samples ``candidates`` action sequences around a mean (tanh units, the actor's output
-  space), adds the habit's sequences (the actor rolled through the model), and scores every sequence by
-  the task's reward, ``-|hand - target|`` (cm) per imagined step, discounted, until the hand is imagined
-  inside the zone (and, on a task with a stop criterion, slow enough), then the critic's
+  space), adds the habit's sequences (the actor rolled through the model; ``habit_candidates`` 0: none), and
+  scores every sequence by the task's reward, ``-|hand - target|`` (cm) per imagined step, discounted, until
+  the hand is imagined inside the zone (and, on a task with a stop criterion, slow enough), then the critic's
   ``Q(s_H, pi(s_H))`` at the horizon (TD-MPC2's terminal value);
 * the next mean and spread are the temperature-weighted mean and spread of the ``elites`` best (MPPI);
 * **anytime**: the best sequence found so far is kept, so cutting the iterations at any count returns a
@@ -127,12 +127,7 @@ class MPCPlanner(Planner):
             self._shift(self.mean)
             return Proposal(torch.zeros(E, self.action_dim, device=state.device), budget, best_values, None)
         habit_value, habit_hands, habit_u = self._habit(agent, state)
-        extra_u = self._habit_variants(habit_u, budget)
-        pool_u, pool_v, pool_h = habit_u, habit_value, habit_hands
-        if extra_u is not None:
-            v, h, _ = self.rollout(agent, state, extra_u)
-            pool_u, pool_v, pool_h = torch.cat([habit_u, extra_u], 1), torch.cat([habit_value, v], 1), \
-                torch.cat([habit_hands, h], 1)
+        pool_u, pool_v, pool_h = self._habit_pool(agent, state, budget, habit_value, habit_hands, habit_u)
         mean = self.mean.to(state.device).clone()
         std = torch.full_like(mean, p.max_std)
         best_u, best_v, best_h = _best(pool_u, pool_v, pool_h)
@@ -156,6 +151,19 @@ class MPCPlanner(Planner):
         self.last_plan = {"hand": best_h.cpu(), "candidates": last_h[:, :8].cpu()}
         action = agent.to_action(best_u[:, 0], state)
         return Proposal(action, budget, best_values, habit_value[:, 0].cpu())
+
+    def _habit_pool(self, agent: WorldModel, state: torch.Tensor, budget: torch.Tensor, habit_value: torch.Tensor,
+                    habit_hands: torch.Tensor, habit_u: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """The habit's sequences every iteration's refit sees and the best starts from: its own sequence and
+        ``habit_candidates - 1`` perturbed copies (values ``[E, n]``, hands, sequences); ``habit_candidates``
+        0: none (empty, ``n = 0``: the plan is the samples' alone; the habit's value is still recorded)."""
+        if self.p.habit_candidates == 0:
+            return habit_u[:, :0], habit_value[:, :0], habit_hands[:, :0]
+        extra_u = self._habit_variants(habit_u, budget)
+        if extra_u is None:
+            return habit_u, habit_value, habit_hands
+        v, h, _ = self.rollout(agent, state, extra_u)
+        return torch.cat([habit_u, extra_u], 1), torch.cat([habit_value, v], 1), torch.cat([habit_hands, h], 1)
 
     def _habit_variants(self, habit_u: torch.Tensor, budget: torch.Tensor) -> torch.Tensor | None:
         """``habit_candidates - 1`` perturbed copies of the habit's sequence ``[E, n, H, A]``; None: none."""
@@ -194,7 +202,11 @@ class MPCPlanner(Planner):
 
 
 def _best(u: torch.Tensor, v: torch.Tensor, h: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Each member's best sequence ``[E, H, A]``, its value ``[E]`` and imagined hand ``[E, H + 1, 2]``."""
+    """Each member's best sequence ``[E, H, A]``, its value ``[E]`` and imagined hand ``[E, H + 1, 2]``; of no
+    sequence (``B = 0``): zeros at value ``-inf``, which any sequence beats."""
+    if v.shape[1] == 0:
+        return u.new_zeros(u.shape[0], *u.shape[2:]), v.new_full(v.shape[:1], -float("inf")), \
+            h.new_zeros(h.shape[0], *h.shape[2:])
     k = v.argmax(1)
     rows = torch.arange(len(k), device=k.device)
     return u[rows, k], v[rows, k], h[rows, k]

@@ -1,62 +1,145 @@
-"""``apac-mj forced-response``: the forced-response test (Hardwick et al. 2019) on a cued task."""
+"""``apac-mj forced-response run|test|report|record``: the forced-response test (Hardwick et al. 2019) on a cued
+task, one sub-command per action, each with only the options it acts on."""
 from __future__ import annotations
 
 import argparse
 
-EPILOG = """\
+PROTOCOL = """\
 The protocol (docs/forced_response.md): every agent kind trains on a cued task (tasks/cued_targets.toml: four
 cues, each with its target) for each practice length, then its frozen networks are tested after the remap
 (two cues' targets swapped) at a range of allowed preparation times, many trials per time. A trial's habit is
 ready after a latency, its planner after its iterations (timing.*); at the deadline the arbitrator decides with
-what is ready, and before anything is ready the arm does not move (a time-out).
+what is ready, and before anything is ready the arm does not move (a time-out)."""
 
-`record` writes one remapped-cue trial at each of a few preparation times (the same trial's latencies) into a
-Rerun recording, each episode's start event saying when the habit and the planner were ready and which acted.
+RUN_EPILOG = PROTOCOL + """
 
-STUDY/ gets runs/<kind>/ (resumable run directories), tests/p<episodes>/<kind>.parquet (outcome counts per seed,
-variant, preparation time and cue) and report/ (curves.csv, peaks.csv, forced_response.png). Re-running the same
-command resumes: finished tests are kept, runs resume from their checkpoints.
+STUDY/ gets protocol.json (the settings), runs/<kind>/ (resumable run directories), tests/p<episodes>/<kind>.parquet
+(outcome counts per seed, variant, preparation time and cue; `episode`: the networks' training episode) and
+report/ (curves.csv, peaks.csv, forced_response.png). Re-running the same command resumes: finished tests are
+kept, runs resume from their checkpoints. On a rerun, agent kinds and practice lengths above the last one may be
+added (said as such); any other change of a setting is refused naming it (nothing is written). One process
+writes a study at a time (STUDY/.lock).
 
 examples:
   apac-mj forced-response run --out results/forced_response
-  apac-mj forced-response run --out results/fr_small --set seeds=0-2 --set practice=50,100 --set agents=ddpg,spac
-  apac-mj forced-response test results/forced_response/runs/apac --out apac.parquet --set timing.habit_latency_ms=250
+  apac-mj forced-response run --out results/fr_small --set seeds=0-2 --set practice=50,100 --set agents=ddpg,spac"""
+
+TEST_EPILOG = """\
+A run being trained is refused (its lock names the training's PID); one stopped or killed before its last episode
+is tested with a warning naming the episode its networks are from. The table (one row per seed, variant,
+preparation time and cue) records that episode in its `episode` column.
+
+examples:
+  apac-mj forced-response test results/forced_response/runs/apac --out apac.parquet
+  apac-mj forced-response test RUN --out t.parquet --set prep_times_ms=250,450,900 --set timing.habit_latency_ms=250"""
+
+REPORT_EPILOG = """\
+Reads STUDY/tests/p<episodes>/<kind>.parquet; every table is checked (columns, finite non-negative counts that
+sum to the trials, no duplicated rows) and a damaged one refused naming the file, the column and the rows.
+
+examples:
   apac-mj forced-response report results/forced_response
+  apac-mj forced-response report results/forced_response --out /tmp/fr_report     # a read-only study"""
+
+RECORD_EPILOG = """\
+One trial of a remapped (or the given) cue at each preparation time, the same trial's latencies at every
+deadline, into one Rerun recording; each trial's start event names it (trial i of n, its deadline and cue) and
+says what the kind has ready by the deadline (its habit, its planner's iterations) and what acted.
+
+examples:
   apac-mj forced-response record results/forced_response/runs/apac_voc --out trials.rrd --prep-times 250,350,900"""
+
+#: The protocol fields a single test takes (the rest are the study's).
+TEST_FIELDS = ("prep_times_ms", "trials", "repeats")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from apac_mj.experiments.forced_response import Protocol, study_run
+    p = sub.add_parser("forced-response", help="the forced-response test: habits unmasked under time pressure",
+                       description="Train on a cued task, remap two cues, and test the frozen agents with a "
+                                   "limited preparation time (Hardwick et al. 2019). `apac-mj forced-response "
+                                   "ACTION --help` lists each action's options.",
+                       epilog=PROTOCOL, formatter_class=argparse.RawDescriptionHelpFormatter)
+    actions = p.add_subparsers(dest="action", metavar="ACTION", required=True)
+    _run_parser(actions)
+    _test_parser(actions)
+    _report_parser(actions)
+    _record_parser(actions)
+
+
+def _parser(actions: argparse._SubParsersAction, name: str, help: str, epilog: str) -> argparse.ArgumentParser:
+    return actions.add_parser(name, help=help, description=help[0].upper() + help[1:] + ".", epilog=epilog,
+                              formatter_class=argparse.RawDescriptionHelpFormatter)
+
+
+def _run_parser(actions: argparse._SubParsersAction) -> None:
+    from apac_mj.experiments.forced_response import Protocol
     from apac_mj.run.timing import Timing
     from apac_mj.util.overrides import field_help
 
-    p = sub.add_parser("forced-response", help="the forced-response test: habits unmasked under time pressure",
-                       description="Train on a cued task, remap two cues, and test the frozen agents with a "
-                                   "limited preparation time (Hardwick et al. 2019).",
-                       epilog=EPILOG + "\n\nProtocol fields (--set NAME=VALUE):\n"
-                       + field_help(Protocol, skip=("timing", "run"))
-                       + "\n\nTiming fields (--set timing.NAME=VALUE, ms):\n"
-                       + field_help(Timing) + "\n\nThe run every kind trains: the fields of `apac-mj train --help` "
-                       "(--set task=..., seeds=0-9, batch_size=64, agent.mpc.horizon=4, ...; not episodes: the "
-                       "practice lengths set them)", formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("action", choices=("run", "test", "report", "record"),
-                   help="run: the whole protocol into --out; test: one trained run's test into --out (a .parquet); "
-                        "report: the report of a study directory; record: trials of a trained run into --out (.rrd)")
-    p.add_argument("path", nargs="?", default=None,
-                   help="test, record: the run directory; report: the study directory")
-    p.add_argument("--out", default=None,
-                   help="run: the study directory; test: the table to write (.parquet); record: the recording (.rrd)")
-    p.add_argument("--prep-times", default="250,450,900", metavar="MS,MS,...",
-                   help="record: the preparation times (ms) of the recorded trials (default 250,450,900)")
-    p.add_argument("--variant", default=None,
-                   help="record: the tested variant (apac, apac_imagined, apac_voc, ...; default the kind's last)")
-    p.add_argument("--cue", type=int, default=None, help="record: the cue shown (default the first remapped one)")
-    p.add_argument("--member", type=int, default=0, help="record: which seed of the run (its index)")
+    p = _parser(actions, "run", "train, remap, test and report the whole protocol into a study directory",
+                RUN_EPILOG + "\n\nProtocol fields (--set NAME=VALUE):\n" + field_help(Protocol, skip=("timing", "run"))
+                + "\n\nTiming fields (--set timing.NAME=VALUE, ms):\n" + field_help(Timing)
+                + "\n\nThe run every kind trains: the fields of `apac-mj train --help` (--set task=..., seeds=0-9, "
+                "batch_size=64, agent.mpc.horizon=4, ...; not episodes: the practice lengths set them)")
+    p.add_argument("--out", required=True, metavar="STUDY_DIR", help="the study directory (created or resumed)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="a protocol, timing, run or agent field (repeatable): seeds=0-9, practice=100,400,1000, "
                         "trials=100, timing.habit_latency_ms=300, batch_size=64, ...")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run_study)
+
+
+def _test_parser(actions: argparse._SubParsersAction) -> None:
+    from apac_mj.experiments.forced_response import Protocol
+    from apac_mj.run.timing import Timing
+    from apac_mj.util.overrides import field_help
+
+    p = _parser(actions, "test", "the forced-response test of one trained run on a cued task, into a table",
+                TEST_EPILOG + "\n\nTest fields (--set NAME=VALUE):\n"
+                + field_help(Protocol, skip=[n for n in _protocol_fields() if n not in TEST_FIELDS])
+                + "\n\nTiming fields (--set timing.NAME=VALUE, ms):\n" + field_help(Timing))
+    p.add_argument("run_dir", metavar="RUN_DIR", help="the trained run directory (a cued task), or a zoo cell "
+                                                      "(zoo:NAME or its directory; docs/zoo.md)")
+    p.add_argument("--out", required=True, metavar="FILE.parquet", help="the table to write (never overwritten)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="a test or timing field (repeatable): prep_times_ms=250,450,900, trials=100, repeats=3, "
+                        "timing.habit_latency_ms=250")
+    p.set_defaults(func=run_test)
+
+
+def _report_parser(actions: argparse._SubParsersAction) -> None:
+    p = _parser(actions, "report", "the report of a study's tests: curves, peak table and figure", REPORT_EPILOG)
+    p.add_argument("study", metavar="STUDY_DIR", help="the study directory (its tests/)")
+    p.add_argument("--out", default=None, metavar="DIR", help="where the report goes (default STUDY_DIR/report)")
+    p.set_defaults(func=report)
+
+
+def _record_parser(actions: argparse._SubParsersAction) -> None:
+    from apac_mj.run.timing import Timing
+    from apac_mj.util.overrides import field_help
+
+    p = _parser(actions, "record", "one trial per preparation time of a trained run, into a Rerun recording",
+                RECORD_EPILOG + "\n\nTiming fields (--set timing.NAME=VALUE, ms):\n" + field_help(Timing))
+    p.add_argument("run_dir", metavar="RUN_DIR", help="the trained run directory (a cued task), or a zoo cell "
+                                                      "(zoo:NAME or its directory; docs/zoo.md)")
+    p.add_argument("--out", required=True, metavar="FILE.rrd", help="the recording to write (never overwritten)")
+    p.add_argument("--prep-times", default="250,450,900", metavar="MS,MS,...",
+                   help="the preparation times (ms) of the recorded trials (default 250,450,900)")
+    p.add_argument("--variant", default=None,
+                   help="the tested variant (apac, apac_imagined, apac_voc, ...; default the kind's last)")
+    p.add_argument("--cue", type=int, default=None, help="the cue shown (default the first remapped one)")
+    p.add_argument("--member", type=int, default=0, help="which seed of the run (its index)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="timing.NAME=VALUE",
+                   help="a timing field (repeatable): timing.habit_latency_ms=250")
+    p.set_defaults(func=record)
+
+
+def _protocol_fields() -> list[str]:
+    import dataclasses
+
+    from apac_mj.experiments.forced_response import Protocol
+
+    return [f.name for f in dataclasses.fields(Protocol)]
 
 
 def protocol(items: list[str]):
@@ -86,43 +169,73 @@ def protocol(items: list[str]):
     return Protocol(**fields, timing=timing, run=cfg)
 
 
-def run(args: argparse.Namespace) -> int:
-    from pathlib import Path
+def plan_from(items: list[str], fields: tuple[str, ...] = TEST_FIELDS):
+    """The :class:`TestPlan` of a single test from ``--set`` items: only ``fields`` (of the protocol) and
+    ``timing.NAME``; any other key is refused naming the ones this action takes."""
+    from apac_mj.experiments.forced_response import Protocol
+    from apac_mj.run.timing import TestPlan, Timing
+    from apac_mj.util import overrides
 
+    allowed = {*fields, "timing"}
+    data = overrides.apply_sets({}, items, agent_fields=(), top_level=allowed)
+    timing = Timing(**overrides.typed_fields(Timing, data.pop("timing", {}), "--set timing."))
+    skip = [n for n in _protocol_fields() if n not in fields]
+    given = overrides.typed_fields(Protocol, data, "--set ", skip=skip)
+    defaults = Protocol.__dataclass_fields__
+    values = {n: given.get(n, defaults[n].default) for n in TEST_FIELDS}
+    return TestPlan(tuple(float(t) for t in values["prep_times_ms"]), values["trials"], values["repeats"], 0, timing)
+
+
+def run_study(args: argparse.Namespace) -> int:
     from apac_mj.experiments import forced_response as fr
+    from apac_mj.report.forced_response import write_report
 
     proto = protocol(args.overrides)  # every setting checked before anything is read or written
-    if args.action == "run":
-        if args.path is not None or args.out is None:
-            raise ValueError("forced-response run takes --out STUDY_DIR and no path")
-        from apac_mj.report.forced_response import write_report
-
-        print(write_report(fr.run(args.out, proto, progress=not args.no_progress)))
-    elif args.action == "test":
-        from apac_mj.run.forced_response import test_run
-
-        if args.path is None or args.out is None or not args.out.endswith(".parquet"):
-            raise ValueError("forced-response test takes a run directory and --out FILE.parquet")
-        if Path(args.out).exists():
-            raise FileExistsError(f"{args.out} exists; choose another --out (nothing was overwritten)")
-        df = test_run(args.path, proto.prep_times_ms, proto.timing, proto.trials, proto.repeats)
-        df.to_parquet(args.out)
-        print(args.out)
-    elif args.action == "record":
-        if args.path is None or args.out is None or not args.out.endswith(".rrd"):
-            raise ValueError("forced-response record takes a run directory and --out FILE.rrd")
-        if Path(args.out).exists():
-            raise FileExistsError(f"{args.out} exists; choose another --out (nothing was overwritten)")
-        times = tuple(_ms(v) for v in args.prep_times.split(","))
-        print(fr.record_trials(args.path, args.out, times, variant=args.variant, cue=args.cue,
-                               member=args.member, timing=proto.timing))
-    else:
-        if args.path is None:
-            raise ValueError("forced-response report takes the study directory")
-        from apac_mj.report.forced_response import write_report
-
-        print(write_report(args.path))
+    print(write_report(fr.run(args.out, proto, progress=not args.no_progress)))
     return 0
+
+
+def run_test(args: argparse.Namespace) -> int:
+    from apac_mj.run.forced_response import test_run
+    from apac_mj.util.files import atomic_write_parquet
+
+    from apac_mj.run.zoo import resolve_run
+
+    plan = plan_from(args.overrides)
+    _new_file(args.out, ".parquet")
+    df = test_run(resolve_run(args.run_dir), plan.prep_times_ms, plan.timing, plan.trials, plan.repeats)
+    atomic_write_parquet(args.out, df)
+    print(args.out)
+    return 0
+
+
+def report(args: argparse.Namespace) -> int:
+    from apac_mj.report.forced_response import write_report
+
+    print(write_report(args.study, out=args.out))
+    return 0
+
+
+def record(args: argparse.Namespace) -> int:
+    from apac_mj.experiments import forced_response as fr
+    from apac_mj.run.zoo import resolve_run
+
+    plan = plan_from(args.overrides, fields=())
+    times = tuple(_ms(v) for v in args.prep_times.split(","))
+    _new_file(args.out, ".rrd")
+    print(fr.record_trials(resolve_run(args.run_dir), args.out, times, variant=args.variant, cue=args.cue, member=args.member,
+                           timing=plan.timing))
+    return 0
+
+
+def _new_file(out: str, suffix: str) -> None:
+    """``out`` names a ``suffix`` file that does not exist yet; else a ValueError / FileExistsError."""
+    from pathlib import Path
+
+    if not out.endswith(suffix):
+        raise ValueError(f"--out {out}: give a {suffix} file")
+    if Path(out).exists():
+        raise FileExistsError(f"{out} exists; choose another --out (nothing was overwritten)")
 
 
 def _ms(text: str) -> float:

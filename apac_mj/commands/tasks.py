@@ -4,6 +4,11 @@ from __future__ import annotations
 import argparse
 
 
+#: ``tasks --show``'s first line: what the ``*`` before a value means (in the "  name = value" form of the lines below).
+SHOW_LEGEND = ("  * = differs from the default (TaskSpec in apac_mj/suite/task_spec.py): what the task file sets; "
+               "[unit] and (source) follow the [plant] values")
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("tasks", help="list the task conditions (tasks/*.toml)",
                        description="List every task file in tasks/ with its conditions. With --regions, also "
@@ -22,6 +27,7 @@ def run(args: argparse.Namespace) -> int:
     from apac_mj.suite.task_spec import describe, load_task, task_names
 
     if args.show is not None:
+        print(SHOW_LEGEND)
         print(describe(load_task(args.show)))
         return 0
     for name in task_names():

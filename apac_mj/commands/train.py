@@ -2,14 +2,17 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import json
+from collections.abc import Iterator
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from apac_mj.config import TrainConfig
     from apac_mj.recording.recording import EpisodeRecorder
     from apac_mj.run.run_dir import RunDir
+    from apac_mj.suite.task_spec import TaskSpec
 
 EPILOG = """\
 examples:
@@ -156,8 +159,16 @@ def planning_phase_note(cfg: TrainConfig) -> str | None:
             f"set the phase shorter, e.g. --set agent.planning_episodes={max(1, cfg.episodes * 2 // 5)}")
 
 
+
+def _progress_mark(run_dir: RunDir) -> tuple[int, int | None]:
+    """What changes when train trains: the metric rows and latest.pt's modification time (an extension lost to a
+    damaged latest.pt is trained again into the same rows, so the rows alone would say nothing was trained)."""
+    from apac_mj.run.run_dir import LATEST
+
+    latest = run_dir.checkpoints / LATEST
+    return run_dir.metric_rows(), latest.stat().st_mtime_ns if latest.is_file() else None
+
 def run(args: argparse.Namespace) -> int:
-    import contextlib
     import sys
 
     from apac_mj.run.run_dir import RunDir
@@ -167,17 +178,63 @@ def run(args: argparse.Namespace) -> int:
     if args.threads < 1:
         raise ValueError(f"--threads must be >= 1, got {args.threads}")
     cfg = train_config(args)
+    spec = check(cfg)  # refuse (unknown task, missing device, a plant its actuation cannot drive) before any note
     if (note := planning_phase_note(cfg)) is not None:
         print(note, file=sys.stderr)
     set_threads(args.threads)  # the whole command (the recorder's renders too), as train() does for its call
     run_dir = RunDir(args.out)
-    before = run_dir.metric_rows()
+    before = _progress_mark(run_dir)
     with contextlib.ExitStack() as stack:
         hooks = [] if args.record_every is None else [stack.enter_context(recorder(args.out, args.record_every, cfg))]
-        train(cfg, run_dir.path, progress=not args.no_progress, hooks=hooks, threads=args.threads)
-    trained = run_dir.metric_rows() != before
+        with unstable_plant(spec, cfg.task_overrides):
+            train(cfg, run_dir.path, progress=not args.no_progress, hooks=hooks, threads=args.threads)
+    trained = _progress_mark(run_dir) != before
     summary = {"run_dir": str(run_dir.path), "status": "trained" if trained else "already finished; nothing trained",
                **run_summary(run_dir)}
     print(json.dumps(summary))
-    print(f"next: apac-mj evaluate {run_dir.path}")
+    print(f"next: {next_command(spec, run_dir.path)}")
     return 0
+
+
+def check(cfg: TrainConfig) -> TaskSpec:
+    """:func:`apac_mj.run.build.check` (writes nothing): the run's task, or a ValueError naming what cannot run."""
+    from apac_mj.run import build
+
+    return build.check(cfg)
+
+
+def next_command(spec: TaskSpec, run_dir: object) -> str:
+    """What to run after training: the frozen tests (``evaluate``), or the forced-response test of a cued task."""
+    if spec.cued:
+        return f"apac-mj forced-response test {run_dir} --out TESTS.parquet (a cued task: docs/forced_response.md)"
+    return f"apac-mj evaluate {run_dir}"
+
+
+@contextlib.contextmanager
+def unstable_plant(spec: TaskSpec, overrides: dict | None = None) -> Iterator[None]:
+    """MuJoCo's invalid-state stop (``mjWARN_BADQACC``...) re-raised naming its likely cause: the run's ``[plant]``
+    overrides (the campaign's DYN-5: ``link_masses=[1e-12,1e-12]``), else the task's plant settings that differ
+    from the defaults."""
+    from dm_control.rl.control import PhysicsError
+
+    try:
+        yield
+    except PhysicsError as e:
+        raise PhysicsError(physics_error_message(spec, e, overrides)) from e
+
+
+def physics_error_message(spec: TaskSpec, e: BaseException, overrides: dict | None = None) -> str:
+    """``e`` (MuJoCo's unstable-state error) with the plant settings that likely caused it."""
+    from apac_mj.suite.plant import describe_plant
+
+    given = (overrides or {}).get("plant")
+    if isinstance(given, dict) and given:
+        cause = "the override " + ", ".join(f"plant.{k} = {v!r}" for k, v in given.items())
+    else:
+        changed = [line[2:].split("  ")[0] for line in describe_plant(spec.plant).splitlines() if line.startswith("*")]
+        if not spec.plant.dynamic or not changed:
+            return str(e)
+        cause = "its plant's " + "; ".join(changed)
+    return (f"{e}: the physics became unstable on task {spec.name!r}; {cause} is the likely cause (an extreme mass, "
+            "torque, stiffness, field or time step): bring it back towards its default (apac-mj tasks --show "
+            f"{spec.name} lists the plant's values and their sources)")

@@ -29,6 +29,8 @@ from typing import Any
 
 from tqdm.auto import tqdm
 
+from apac_mj.util.progress import PlainProgress, progress_bar
+
 #: Seconds the grid waits for interrupted workers to say what they saved and exit before killing them.
 STOP_SECONDS = 10.0
 
@@ -129,9 +131,11 @@ def _stop_pool(pool: cf.ProcessPoolExecutor, workers: list[multiprocessing.Proce
             p.join(1.0)
 
 
-def _grid_bar(progress: bool, done: int, total: int) -> tqdm:
-    return tqdm(total=total, initial=done, desc="grid", unit="cell", position=0, disable=not progress,
-                dynamic_ncols=True)
+def _grid_bar(progress: bool, done: int, total: int) -> tqdm | PlainProgress:
+    """The grid's bar of finished cells: tqdm's on a terminal; elsewhere, and without ``progress`` (the cells'
+    own bars off: ``--no-progress``), one plain line per finished cell."""
+    return progress_bar(total, "grid", "cell", initial=done, plain=True if not progress else None, every=1,
+                        position=0, dynamic_ncols=True)
 
 
 class LocalExecutor:
@@ -243,8 +247,8 @@ def import_ray() -> Any:
 
 def _report(bar: tqdm, on_result: OnResult, res: dict[str, Any]) -> None:
     on_result(res)
+    bar.set_postfix_str(f"{res['cell']}: {res['status']}", refresh=False)  # before the update: a plain line has it
     bar.update(1)
-    bar.set_postfix_str(f"{res['cell']}: {res['status']}")
 
 
 def make_executor(name: str, workers: int = 1, ray_address: str | None = None) -> Executor:

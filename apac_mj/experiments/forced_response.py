@@ -81,32 +81,98 @@ def test_path(study: Path, practice: int, kind: str) -> Path:
 
 
 def run(study: str | Path, protocol: Protocol, progress: bool = True, say: Callable[[str], None] = print) -> Path:
-    """Train and test the whole protocol into ``study`` (tests already written are kept); returns ``study``.
-    The report: :func:`apac_mj.report.forced_response.write_report`."""
-    from apac_mj.run.forced_response import test_run
-    from apac_mj.run.trainer import train
-    from apac_mj.suite import load_spec
+    """Train and test the whole protocol into ``study`` (tests already written are kept) as the study's one
+    writer (``STUDY/.lock``); returns ``study``. A rerun is checked against ``protocol.json`` first
+    (:func:`check_rerun`). The report: :func:`apac_mj.report.forced_response.write_report`."""
+    from apac_mj.run.build import task_record
+    from apac_mj.suite import spec_for
+    from apac_mj.util.files import atomic_write_text, remove_stale_temporaries
+    from apac_mj.util.lock import locked
 
-    spec = load_spec(protocol.run.task)
+    spec = spec_for(protocol.run)
     if not spec.cued or not spec.cues.swap:
         raise ValueError(f"task {protocol.run.task!r} is not a cued task with remapped cues ([cues] targets and swap)")
     study = Path(study)
-    study.mkdir(parents=True, exist_ok=True)
-    (study / "protocol.json").write_text(json.dumps(dataclasses.asdict(protocol), indent=1, default=str))
-    plan = protocol.test_plan()
-    for kind in protocol.agents:
-        run_dir = study / "runs" / kind
-        for episodes in protocol.practice:
-            out = test_path(study, episodes, kind)
-            if out.is_file():
-                continue
-            train(protocol.train_config(kind, episodes), run_dir, progress=progress)
-            say(f"forced-response test: {kind} after {episodes} episodes")
-            df = test_run(run_dir, plan.prep_times_ms, plan.timing, plan.trials, plan.repeats)
-            out.parent.mkdir(parents=True, exist_ok=True)
-            df.to_parquet(out.with_suffix(".tmp"))
-            out.with_suffix(".tmp").replace(out)
+    record = protocol_record(protocol, task_record(protocol.run, spec).spec)
+    with locked(study, "forced-response study"):
+        for line in check_rerun(study, record):
+            say(line)
+        for stale in remove_stale_temporaries(study / "tests"):  # a killed writer's half-written table
+            say(f"removed {stale}, a temporary file a killed writer left")
+        atomic_write_text(study / PROTOCOL_FILE, json.dumps(record, indent=1) + "\n")
+        for kind in protocol.agents:
+            _kind(study, protocol, kind, progress, say)
     return study
+
+
+def _kind(study: Path, protocol: Protocol, kind: str, progress: bool, say: Callable[[str], None]) -> None:
+    """Every practice length of ``kind`` not tested yet: train (or extend) its run, then test it."""
+    from apac_mj.run.forced_response import test_run
+    from apac_mj.run.trainer import train
+    from apac_mj.util.files import atomic_write_parquet
+
+    plan = protocol.test_plan()
+    run_dir = study / "runs" / kind
+    for episodes in protocol.practice:
+        out = test_path(study, episodes, kind)
+        if out.is_file():
+            continue
+        train(protocol.train_config(kind, episodes), run_dir, progress=progress)
+        say(f"forced-response test: {kind} after {episodes} episodes")
+        df = test_run(run_dir, plan.prep_times_ms, plan.timing, plan.trials, plan.repeats, expect_episodes=episodes)
+        atomic_write_parquet(out, df)
+
+
+#: The study's settings, as its tests were made (written before the first test, checked on every rerun).
+PROTOCOL_FILE = "protocol.json"
+#: The settings a rerun may extend (the others must be the same): agent kinds, and practice lengths above the last.
+EXTENSIBLE = ("agents", "practice")
+
+
+def protocol_record(protocol: Protocol, task: dict) -> dict:
+    """``protocol`` in JSON form with the resolved task it trains (its cues and swap: what the tests mean)."""
+    return {**json.loads(json.dumps(dataclasses.asdict(protocol), default=str)), "task_spec": task}
+
+
+def check_rerun(study: Path, record: dict) -> list[str]:
+    """What a rerun with ``record`` (:func:`protocol_record`) over ``study`` adds (lines to say), or a ValueError
+    naming every setting that differs from ``protocol.json`` (old and new values): only agent kinds, and practice
+    lengths above the study's last, may be added. Tests without a protocol.json are refused (their settings are
+    unknown). Reads only."""
+    from apac_mj.run.run_dir import diff
+    from apac_mj.util.files import read_json
+
+    stored = read_json(study / PROTOCOL_FILE, fix=f"remove {study / 'tests'} and rerun, or use another --out")
+    if stored is None:
+        if any((study / "tests").glob("p*/*.parquet")):
+            raise ValueError(f"{study} holds tests but no {PROTOCOL_FILE} recording the settings they were made "
+                             "with; use another --out (nothing was written)")
+        return []
+    fixed = [k for k in stored if k not in EXTENSIBLE and k in record]  # a key the study predates: not checked
+    changed = diff({k: stored[k] for k in fixed}, {k: record[k] for k in fixed}, "in the study")
+    changed += _not_extended(stored, record)
+    if changed:
+        raise ValueError(f"{study} holds a forced-response study made with other settings ({'; '.join(changed)}); "
+                         "its tests would be mixed with new ones. Use another --out, or the same settings to resume "
+                         f"(agent kinds, and practice lengths above {max(stored['practice'])}, may be added; seeds "
+                         "cannot: each kind's seeds train side by side in one run). Nothing was written")
+    added = [k for k in record["agents"] if k not in stored["agents"]]
+    longer = [p for p in record["practice"] if p not in stored["practice"]]
+    return ([f"extending {study}: adding agent kind(s) {', '.join(added)}"] if added else []) + \
+        ([f"extending {study}: adding practice length(s) {', '.join(map(str, longer))} episodes"] if longer else [])
+
+
+def _not_extended(stored: dict, record: dict) -> list[str]:
+    """The extensible settings that ``record`` changes other than by adding (kinds; practice above the last)."""
+    out = []
+    if not set(stored["agents"]) <= set(record["agents"]):
+        out.append(f"agents: {stored['agents']!r} in the study, {record['agents']!r} now (kinds may be added, "
+                   "not left out)")
+    old, new = stored["practice"], record["practice"]
+    if not set(old) <= set(new) or any(p < max(old) for p in new if p not in old):
+        out.append(f"practice: {old!r} in the study, {new!r} now (lengths above {max(old)} may be added; "
+                   "none left out)")
+    return out
 
 
 def record_trials(run_dir: str | Path, out: str | Path, prep_times_ms: tuple[float, ...] = (250.0, 450.0, 900.0),
@@ -131,18 +197,20 @@ def record_trials(run_dir: str | Path, out: str | Path, prep_times_ms: tuple[flo
     variant = _checked_trial(run_dir, cfg, tested, variant or tested[-1], cue, cues.n, member)
     c = fr.candidates(loop, cfg, variant, 1, timing)
     H, S = fr.latencies(timing, np.random.default_rng(seed))
+    shown = f"cue {cue} ({'remapped' if cue in cues.remapped else 'unchanged'})"
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     with EpisodeRecorder(out.parent, out=out, member=member, config=config_dict(cfg)) as recorder, \
             loop.env.overridden(cue=cue, remapped=True):
-        for t in plan.prep_times_ms:
+        for i, t in enumerate(plan.prep_times_ms):
             habit, k, recorder.note = _at_deadline(loop, cfg, c, t, float(H), float(S), member, cue,
-                                                   f"{label(variant, tested)}, cue {cue} (remapped)", timing)
-            say(recorder.note)
+                                                   f"{label(variant, tested)}, {shown}", timing)
+            recorder.title = f"trial {i + 1} of {len(plan.prep_times_ms)} (deadline {t:.0f} ms, {shown})"
+            say(f"{recorder.title}: {recorder.note}")
             if k or habit:
-                fr.movement(loop, fr.Committed(habit, k), hooks=[recorder])
+                fr.movement(loop, fr.Committed(habit, k), hooks=[recorder], episode=i)
             else:
-                fr.no_movement(loop, hooks=[recorder])
+                fr.no_movement(loop, hooks=[recorder], episode=i)
     return out
 
 
@@ -174,6 +242,8 @@ def _at_deadline(loop: EpisodeLoop, cfg: TrainConfig, c: Candidates, t: float, H
     ready = int(fr.ready_iterations(t, np.array(S), iteration, K, kind.uses_planner))
     who = (f"the planner acts ({int(k)} iteration(s))" if plan else "the habit acts" if habit
            else "nothing is ready: no movement (a time-out)")
-    caption = (f"deadline {t:.0f} ms: {who}; habit ready at {H:.0f} ms, planner from {S:.0f} ms "
-               f"({ready} of {K} iteration(s) by the deadline); {what}")
+    has_habit = f"habit ready at {H:.0f} ms" if kind.uses_habit else f"no habit ({kind.label} has none)"
+    has_plan = (f"planner from {S:.0f} ms ({ready} of {K} iteration(s) by the deadline)" if kind.uses_planner
+                else f"no planner ({kind.label} has none)")
+    caption = f"deadline {t:.0f} ms: {who}; {has_habit}, {has_plan}; {what}"
     return bool(habit), int(k) if plan else 0, caption

@@ -37,6 +37,8 @@ from apac_mj.experiments.presets import TRAIN_REGION_SUFFIX, Preset
 from apac_mj.experiments.results import CELL_FILE, MANIFEST
 from apac_mj.run.build import check
 from apac_mj.run.run_dir import RunDir, diff, say
+from apac_mj.suite import spec_for
+from apac_mj.suite.task_spec import TaskSpec
 from apac_mj.util.lock import locked
 
 #: The way out for a damaged cell.json.
@@ -108,6 +110,8 @@ def cell_status(cell: Cell, preset: Preset, results: Path) -> tuple[str, str]:
     """What running ``cell`` into ``results`` would do, writing nothing: ("done" | "to run" | "to resume" |
     "to extend" | "refused", why). A cell that differs only by more episodes is extended."""
     cell_dir = Path(results) / cell.name
+    if (why := cued_refusal(cell, spec_for(cell.train_config(preset)))) is not None:
+        return "refused", why
     info, old = _cell_info(cell, preset), _cell_file(cell_dir)
     if old is None:
         return "to run", ""
@@ -143,10 +147,27 @@ def prepare_cell(cell: Cell, preset: Preset, results: Path) -> Path:
     return cell_dir
 
 
+class CuedConditionError(ValueError):
+    """A grid condition is a cued task (``[cues]``), whose targets the grid's frozen tests do not test."""
+
+
+def cued_refusal(cell: Cell, spec: TaskSpec) -> str | None:
+    """Why ``cell`` (its task ``spec``) cannot be tested by the grid: a cued task with tests; None: it can."""
+    if not spec.cued or not cell.protocols:
+        return None
+    return (f"condition {cell.condition!r} is a cued task ([cues]): the grid's tests ({', '.join(cell.protocols)}) "
+            "reach the angle grid's targets, not its cues, and would fail every cell after its training; remove it "
+            "from conditions, or set tests.grid=false and tests.occluded=false to only train it, and study it "
+            "with apac-mj forced-response run (docs/forced_response.md)")
+
+
 def check_grid(preset: Preset, results: Path) -> dict[str, tuple[str, str]]:
-    """Every cell's status; raises ValueError naming every refused cell or invalid run (nothing is written)."""
+    """Every cell's status; raises ValueError naming every refused cell or invalid run (nothing is written), a
+    :class:`CuedConditionError` for a cued condition with tests."""
     for c in cells(preset):
-        check(c.train_config(preset))  # devices, seeds, the task and its overrides: before anything runs
+        spec = check(c.train_config(preset))  # devices, seeds, the task and its overrides: before anything runs
+        if (why := cued_refusal(c, spec)) is not None:
+            raise CuedConditionError(f"preset {preset.name!r}: {why}; nothing run")
     statuses = {c.name: cell_status(c, preset, Path(results)) for c in cells(preset)}
     refused = [why for status, why in statuses.values() if status == "refused"]
     if refused:

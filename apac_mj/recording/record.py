@@ -13,7 +13,6 @@ from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
-from tqdm.auto import tqdm
 
 from apac_mj import kinds
 from apac_mj.agent.agent import Agent
@@ -27,6 +26,7 @@ from apac_mj.suite import spec_for
 from apac_mj.suite.render import write_video
 from apac_mj.suite.vec_env import VecEnv
 from apac_mj.types import StepInfo
+from apac_mj.util.progress import progress_iter
 
 
 @dataclasses.dataclass(frozen=True)
@@ -42,16 +42,19 @@ class Recorded:
 
 def record(out: str | Path, run: str | Path | None = None, task: str | None = None, agent: str | None = None,
            seed: int = 0, member: int = 0, episodes: int = 5, as_episode: int | None = None,
-           video: str | Path | None = None, fps: int = 5, progress: bool = True) -> Recorded:
+           video: str | Path | None = None, fps: int = 5, progress: bool = True, overwrite: bool = True) -> Recorded:
     """Roll out ``episodes`` frozen episodes (no noise, no learning) and save member ``member`` to ``out``.
 
     With ``run`` the networks are the run's latest checkpoint and the rollouts continue its environments
     (unless ``task`` names another task); without it the networks are untrained and seeded from ``seed``.
     ``agent`` re-arbitrates the networks as another kind; ``as_episode`` is the training episode the
-    arbitrator sees first (default: the run's trained episodes, or ``planning_episodes``).
+    arbitrator sees first (default: the run's trained episodes, or ``planning_episodes``). ``overwrite=False``
+    refuses an existing ``out`` or ``video`` (:class:`FileExistsError`) before anything is rolled out.
     """
     out, video = Path(out), None if video is None else Path(video)
     _check(out, run, video, episodes, fps, seed, member)
+    if not overwrite:
+        check_new(out, video)
     cfg, net, env, first, running = load_agent(run, task, agent, seed, member, as_episode)
     member = member if run is not None else 0
     with EpisodeRecorder(out.parent, 1, config_dict(cfg), member=member, out=out,
@@ -123,7 +126,7 @@ def frozen_episodes(cfg: TrainConfig, net: Agent, env: VecEnv, running: dict[str
     ``until(n)``: stop early once it is true after ``n`` episodes."""
     loop = episode_loop(net, env, hooks=[hook], adapt=False)
     loop.load_state_dict(running)
-    for k in tqdm(range(episodes), desc="record", unit="episode", disable=not progress):
+    for k in progress_iter(range(episodes), episodes, "record", "episode", enabled=progress):
         loop.run_episode(np.ones(env.E, dtype=bool), first + k)
         if until is not None and until(k + 1):
             return
@@ -151,6 +154,14 @@ def _check(out: Path, run: str | Path | None, video: Path | None, episodes: int,
         raise FileNotFoundError(f"--run: {problem}")
 
 
+def check_new(out: Path, video: Path | None) -> None:
+    """``out`` and ``video`` do not exist yet; else a FileExistsError naming the file and the way out."""
+    for path, option in ((out, "--out"), (video, "--video")):
+        if path is not None and path.exists():
+            raise FileExistsError(f"{path} exists; choose another {option}, or pass --force to replace it "
+                                  "(nothing was written)")
+
+
 def load_agent(run: str | Path | None, task: str | None, agent: str | None, seed: int, member: int,
                as_episode: int | None) -> tuple[TrainConfig, Agent, VecEnv, int, dict[str, Any]]:
     """(config, agent, environments, first arbitrator episode, the arbitrator's and the integrator's running
@@ -176,8 +187,9 @@ def load_agent(run: str | Path | None, task: str | None, agent: str | None, seed
     loaded = load_run(run, device="cpu", precision="fp32", env=env)
     if not other_task:  # the run's environments where training left off: lengths, targets, sequence
         loaded.env.set_state(loaded.ckpt.env)
-    if agent is not None:
+    if agent is not None:  # the loop's arbitrator and planner are the agent's kind's (run.build.episode_loop)
         cfg = dataclasses.replace(cfg, agent=dataclasses.replace(cfg.agent, kind=kinds.get(agent).name))
+        loaded.agent.cfg = dataclasses.replace(loaded.agent.cfg, kind=cfg.agent.kind)
     running = loaded.ckpt.running_statistics()
     if agent not in (None, trained_kind):
         running.pop("arbitrator", None)  # re-arbitrated as another kind: its own rule starts fresh
@@ -188,8 +200,12 @@ def load_agent(run: str | Path | None, task: str | None, agent: str | None, seed
 def _say_overrides(run: str | Path, task: str | None, agent: str | None, seed: int, cfg: TrainConfig) -> None:
     """With a run, an agent kind or task other than the run's is allowed but said."""
     if agent not in (None, cfg.agent.kind):
+        trained, other = kinds.get(cfg.agent.kind), kinds.get(agent)
+        planner = "" if other.planner == trained.planner else (
+            f", planning with its {other.planner} planner through the run's forward model"
+            if other.planner == "mpc" else f", planning with its {other.planner} planner")
         say(f"note: {run} trained {cfg.agent.kind}; recording its networks arbitrated as {agent} "
-            f"(--agent {agent})")
+            f"(--agent {agent}){planner}")
     if task not in (None, cfg.task):
         trained = Geometry.from_spec(spec_for(cfg))
         other = Geometry.from_spec(spec_for(dataclasses.replace(cfg, task=task)))

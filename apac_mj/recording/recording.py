@@ -5,7 +5,7 @@ plane), why the arbitrator chose what it chose (|delta| against the threshold,
 the controller that acted) and that the physics matches the paper's motion
 function (the MuJoCo arm and the motion-function arm overlaid, and their
 maximum difference as a time series). ``docs/recording.md`` describes every
-entity path; :data:`ENTITY_PATHS` lists them.
+entity path; :data:`ALL_ENTITY_PATHS` lists them (a test compares the two).
 
 Timelines: ``episode`` and ``step`` (the step within the episode; step 0 is
 the start pose), plus ``frame``, a counter over the whole recording, so that
@@ -85,6 +85,10 @@ PLAN = "plane/plan/chosen"
 PLAN_CANDIDATES = "plane/plan/candidates"
 PLAN_ITERATIONS = "series/planning/iterations"
 DECISION_MS = "series/planning/decision_ms"
+#: The plane view's legend: a swatch and a name per drawn line entity of the recording (:data:`LEGEND_ENTRIES`),
+#: shown in a view of its own below the plane, on LEGEND_BACKGROUND.
+LEGEND = "legend"
+LEGEND_BACKGROUND = "legend/background"
 #: Entity paths a recording of a task with dynamics adds.
 PLANT_PATHS = (ARM_COMMANDED, HAND_FORCE, LOAD, HAND_FORCE_SIZE, f"{JOINT_VELOCITY}/shoulder",
                f"{JOINT_VELOCITY}/elbow")
@@ -97,6 +101,12 @@ ENTITY_PATHS = (
     RENDER, FIELD, ARM_MUJOCO, ARM_MOTION_FUNCTION, TARGET, TARGET_ZONE, PATH, REWARD, DISTANCE,
     ABS_DELTA, DELTA_THRESHOLD, CONTROLLER, FORWARD_ERROR, KINEMATICS_ERROR, L1, L2, VISION, EVENTS,
 )
+#: Entity paths a recording of a kind with a model planner (an MPC) adds.
+PLAN_PATHS = (PLAN, PLAN_CANDIDATES, PLAN_ITERATIONS, DECISION_MS)
+#: Every entity path a recording may log (docs/recording.md lists each; the arbitrator's inputs are
+#: ``ARBITRATION_INPUTS/<name>``, the legend's swatches ``LEGEND/<n>``): the per-step ones, then the static ones.
+ALL_ENTITY_PATHS = (*ENTITY_PATHS, ARM_FORWARD_MODEL, ESTIMATE_ERROR, *PLANT_PATHS, *PLAN_PATHS,
+                    PLANE, BORDER, SHOULDER, LEGEND_BACKGROUND)
 
 #: Chunk batching of the file sink: flush after this many seconds or bytes (or at close).
 BATCH_SECONDS, BATCH_BYTES = 60.0, 8 * 1024 * 1024
@@ -112,6 +122,8 @@ CONTOUR_CM = 2.0
 
 _BLACK, _GREY, _PURPLE = (20, 20, 20), (170, 170, 170), (170, 90, 230)
 _ORANGE, _GREEN, _RED, _BLUE = (255, 140, 0), (30, 170, 60), (220, 30, 30), (30, 80, 240)
+#: The MPC's plan (not the target's red) and the field's force at the hand (not the target's red either).
+_MAGENTA, _BROWN = (205, 0, 160), (130, 80, 30)
 
 
 @dataclasses.dataclass
@@ -219,10 +231,61 @@ def forward_model_error(rec: StepRecord) -> float:
 PLAYBACK_FPS = 10.0
 
 
-def default_blueprint(plane_size: Sequence[float] = (30.0, 30.0)) -> rrb.Blueprint:
-    """Two rows: the render, the plane view and the arbitration's three series on top (what a reader looks
-    at first); the events log and the plant's and the checks' series, one tab each, below. The time
-    panel is collapsed to its play bar, so the views get the window's height."""
+#: The unit of each arbitrator input (``Decision.inputs``; docs/arbitrators.md defines them): the "why" panel draws
+#: one plot per unit, so that cm, values and gains never share an axis. An input not listed gets a plot of its own.
+INPUT_UNITS = {
+    "abs_delta": "|δ| (reward units)", "delta": "δ (reward units)", "threshold": "|δ| (reward units)",
+    "habit_uncertainty": "uncertainty (cm²)", "planning_uncertainty": "uncertainty (cm²)",
+    "habit_reliability": "probability", "planning_reliability": "probability", "p_planning": "probability",
+    "distance": "cm", "habit_final_distance": "cm", "predicted_habit_distance": "cm",
+    "time_if_habit": "steps", "time_if_planning": "steps", "planning_gain": "steps", "planning_extra_cost": "steps",
+    "habit_value": "value (reward units)", "expected_gain": "value (reward units)",
+    "planning_cost": "value (reward units)", "iterations": "iterations", "vision": "vision (1 seen, 0 not)",
+}
+#: The legend of the plane view: (entity path, name); a recording shows the entries it drew.
+LEGEND_ENTRIES = (
+    (ARM_MUJOCO, "MuJoCo arm"), (ARM_MOTION_FUNCTION, "motion function"), (ARM_FORWARD_MODEL, "forward model, dashed"),
+    (PATH, "hand path"), (TARGET, "target and zone"), (ARM_COMMANDED, "commanded arm, dashed"),
+    (HAND_FORCE, "field force at the hand"), (PLAN, "MPC plan"), (PLAN_CANDIDATES, "plan candidates"),
+)
+#: The legend's grid: columns, and the size of a cell (legend units; its swatch is 60% of the width, its name
+#: drawn under it): about the aspect of the legend's view under the plane.
+LEGEND_COLUMNS, LEGEND_CELL = 3, (16.0, 3.2)
+
+
+def why_groups(inputs: Sequence[str]) -> list[tuple[str, list[str]]]:
+    """The arbitrator's ``inputs`` grouped by unit (:data:`INPUT_UNITS`), in the order they first appear:
+    ``[(unit, names)]``; an input of unknown unit is a group of its own."""
+    groups: dict[str, list[str]] = {}
+    for name in inputs:
+        groups.setdefault(INPUT_UNITS.get(name, name), []).append(name)
+    return list(groups.items())
+
+
+def why_view(inputs: Sequence[str]) -> rrb.TimeSeriesView | rrb.Tabs:
+    """The "why" panel: one plot per unit of the arbitrator's inputs (tabs when there are several)."""
+    groups = why_groups(inputs)
+    if not groups:
+        return rrb.TimeSeriesView(origin=ARBITRATION_INPUTS, name="why: the arbitrator's inputs to each decision")
+    views = [rrb.TimeSeriesView(origin=ARBITRATION_INPUTS, contents=[f"+ $origin/{n}" for n in names],
+                                name=f"why ({unit}): {', '.join(names)}") for unit, names in groups]
+    return views[0] if len(views) == 1 else rrb.Tabs(*views, name="why: the arbitrator's inputs, by unit")
+
+
+def legend_layout(count: int) -> tuple[list[np.ndarray], tuple[float, float]]:
+    """The swatches of ``count`` legend entries (a strip each, its name drawn under it) and the legend's size."""
+    w, h = LEGEND_CELL
+    strips = [np.array([[(k % LEGEND_COLUMNS + 0.2) * w, (k // LEGEND_COLUMNS + 0.25) * h],
+                        [(k % LEGEND_COLUMNS + 0.8) * w, (k // LEGEND_COLUMNS + 0.25) * h]]) for k in range(count)]
+    rows = max(1, -(-count // LEGEND_COLUMNS))
+    return strips, (LEGEND_COLUMNS * w, rows * h)
+
+
+def default_blueprint(plane_size: Sequence[float] = (30.0, 30.0), inputs: Sequence[str] = ()) -> rrb.Blueprint:
+    """Two rows: the render, the plane view (its legend below it) and the arbitration's series (the "why" inputs
+    one plot per unit, :func:`why_view`) on top, what a reader looks at first; the events log and the plant's and
+    the checks' series, one tab each, below. The time panel is collapsed to its play bar, so the views get the
+    window's height."""
     w, h = plane_size
 
     def view(name: str, *paths: str) -> rrb.TimeSeriesView:
@@ -231,7 +294,7 @@ def default_blueprint(plane_size: Sequence[float] = (30.0, 30.0)) -> rrb.Bluepri
     arbitration = rrb.Vertical(
         view("distance (cm), reward", DISTANCE, REWARD),
         view("|delta| vs threshold; controller (1 habit, 0 planning)", ABS_DELTA, DELTA_THRESHOLD, CONTROLLER),
-        rrb.TimeSeriesView(origin=ARBITRATION_INPUTS, name="why: the arbitrator's inputs to each decision"),
+        why_view(inputs),
     )
     details = rrb.Tabs(
         view("forward-model and state-estimate error (cm); vision (1 seen)", FORWARD_ERROR, ESTIMATE_ERROR,
@@ -243,16 +306,20 @@ def default_blueprint(plane_size: Sequence[float] = (30.0, 30.0)) -> rrb.Bluepri
         view("planning: iterations run; the decision's measured time (ms)", PLAN_ITERATIONS, DECISION_MS),
         name="details",
     )
+    _, (lw, lh) = legend_layout(len(LEGEND_ENTRIES))
+    plane = rrb.Vertical(
+        # Origin "/" so that the plane entity's y-flip applies (a view's own origin transform is ignored).
+        rrb.Spatial2DView(origin="/", contents=f"+ {PLANE}/**", name="plane (cm)",
+                          visual_bounds=rrb.VisualBounds2D(x_range=[0, w], y_range=[0, h])),
+        rrb.Spatial2DView(origin=LEGEND, name="legend",
+                          visual_bounds=rrb.VisualBounds2D(x_range=[0, lw], y_range=[0, lh])),
+        row_shares=[3.2, 1],
+    )
     return rrb.Blueprint(
         rrb.Vertical(
             rrb.Horizontal(
                 rrb.Spatial2DView(origin="render", name="MuJoCo overhead render"),
-                # Origin "/" so that the plane entity's y-flip applies (a view's own origin transform is ignored).
-                rrb.Spatial2DView(origin="/", contents=f"+ {PLANE}/**",
-                                  name="plane (cm): MuJoCo black, motion function orange, forward model dashed "
-                                       "green, commanded dashed purple, field force red, the MPC's plan red "
-                                       "(candidates grey)",
-                                  visual_bounds=rrb.VisualBounds2D(x_range=[0, w], y_range=[0, h])),
+                plane,
                 arbitration,
                 column_shares=[1, 1.1, 1.3],
             ),
@@ -349,7 +416,11 @@ class Recording:
         batching = rr.ChunkBatcherConfig(flush_tick=BATCH_SECONDS, flush_num_bytes=BATCH_BYTES)
         # A fresh random recording id (Rerun's default): two files opened together never merge.
         self._stream = rr.RecordingStream(APPLICATION_ID, make_default=False, batcher_config=batching)
-        self._stream.save(str(self.writing), default_blueprint=default_blueprint(self.plane_size))
+        # The blueprint and the legend are sent at close, when what was drawn (and the "why" inputs) is known.
+        self._stream.save(str(self.writing))
+        #: Entities drawn so far, and the arbitrator's inputs in the order they first came (for the blueprint).
+        self._drawn: set[str] = set()
+        self._inputs: dict[str, None] = {}
         self._stream.send_recording_name(name)
         self._send_properties(config or {})
         self._log_static()
@@ -386,8 +457,9 @@ class Recording:
         self._rows.setdefault(path, []).append((int(episode), int(step), self.frames, payload))
 
     def start_episode(self, episode: int, target: Sequence[float], link_lengths: Sequence[float],
-                      note: str = "") -> None:
-        """Log the episode's target, target zone and distance field, and the start event."""
+                      note: str = "", title: str = "") -> None:
+        """Log the episode's target, target zone and distance field, and the start event (``title``: what the
+        episode is, e.g. a forced-response trial; default "episode N")."""
         self.flush()
         self._path_points = []
         self.episodes += 1
@@ -404,7 +476,7 @@ class Recording:
                                      draw_order=-10.0, magnification_filter="Linear"))
         l1, l2 = (float(v) for v in link_lengths)
         extra = f" {note}" if note else ""
-        self.event(episode, 0, f"episode {episode} starts: target ({target[0]:.2f}, {target[1]:.2f}) cm, "
+        self.event(episode, 0, f"{title or f'episode {episode}'} starts: target ({target[0]:.2f}, {target[1]:.2f}) cm, "
                                f"lengths l1={l1:.3f} l2={l2:.3f} cm{extra}")
 
     def event(self, episode: int, step: int, text: str, level: str = "INFO") -> None:
@@ -457,6 +529,7 @@ class Recording:
         for path, value in values.items():
             if np.isfinite(value):
                 self._buffer(path, rec.episode, rec.step, float(value))
+        self._inputs.update(dict.fromkeys(rec.arbitration))
 
     def _log_step_events(self, rec: StepRecord) -> None:
         e, k = rec.episode, rec.step
@@ -476,6 +549,7 @@ class Recording:
             episode, step, frame, payload = zip(*rows)
             if path in _STRIP_STYLES and not any(len(row) for row in payload):
                 continue  # only empty batches (no prediction in any row): nothing to draw or clear
+            self._drawn.add(path)
             self._stream.send_columns(
                 path,
                 indexes=[rr.TimeColumn("episode", sequence=episode), rr.TimeColumn("step", sequence=step),
@@ -511,11 +585,27 @@ class Recording:
     def _finish(self, complete: bool) -> None:
         """Write the last rows and the status, flush within FLUSH_SECONDS, close the stream, read the file back."""
         self.flush()
+        self._log_legend()
+        self._stream.send_blueprint(default_blueprint(self.plane_size, list(self._inputs)))
         self._stream.send_property("status", rr.AnyValues(complete=complete, episodes=self.episodes,
                                                           frames=self.frames))
         self._stream.flush(timeout_sec=FLUSH_SECONDS)
         self._stream.disconnect()
         check_written(self.writing, complete)
+
+    def _log_legend(self) -> None:
+        """The plane view's legend: a swatch in its colour and the name of every line entity drawn, and the
+        target's, on a light background (so that the black arm's name reads in the viewer's dark theme)."""
+        drawn = [(path, name) for path, name in LEGEND_ENTRIES
+                 if path in self._drawn or (path == TARGET and self.episodes)]
+        strips, (w, h) = legend_layout(len(drawn))
+        s = self._stream
+        s.log(LEGEND_BACKGROUND, rr.Image(np.full((2, 2, 3), 235, dtype=np.uint8), draw_order=-10.0), static=True)
+        s.log(LEGEND_BACKGROUND, rr.Transform3D(scale=[w / 2, h / 2, 1.0]), static=True)
+        for k, ((path, name), strip) in enumerate(zip(drawn, strips)):
+            color = _RED if path == TARGET else _STRIP_STYLES[path][0]
+            s.log(f"{LEGEND}/{k}", rr.LineStrips2D([strip], colors=[color], radii=[0.35], labels=[name],
+                                                   show_labels=True), static=True)
 
     def _discard(self) -> None:
         """Remove the temporary of a recording that cannot be finished (the stream's file handle closed first)."""
@@ -583,8 +673,8 @@ def _size(path: Path) -> str:
 _STRIP_STYLES = {
     ARM_MUJOCO: (_BLACK, 0.3, 20.0), ARM_MOTION_FUNCTION: (_ORANGE, 0.1, 21.0),
     ARM_FORWARD_MODEL: (_GREEN, 0.15, 22.0), PATH: (_BLUE, 0.08, 15.0),
-    ARM_COMMANDED: (_PURPLE, 0.12, 19.0), HAND_FORCE: (_RED, 0.12, 23.0),
-    PLAN: (_RED, 0.12, 18.0), PLAN_CANDIDATES: (_GREY, 0.04, 16.0),
+    ARM_COMMANDED: (_PURPLE, 0.12, 19.0), HAND_FORCE: (_BROWN, 0.12, 23.0),
+    PLAN: (_MAGENTA, 0.12, 18.0), PLAN_CANDIDATES: (_GREY, 0.04, 16.0),
 }
 
 
@@ -756,6 +846,8 @@ class EpisodeRecorder(Hook):
         self._recording_episode = False
         #: A line logged as an event at each recorded episode's start (e.g. a forced-response trial's timing).
         self.note = ""
+        #: What the next recorded episode is, for its start event (e.g. "trial 2 of 3 (deadline 450 ms, cue 1)").
+        self.title = ""
 
     # -- hooks ----------------------------------------------------------------------------------
     def on_episode_start(self, members: np.ndarray, vec_env: VecEnv) -> None:
@@ -821,7 +913,7 @@ class EpisodeRecorder(Hook):
                                         delta_threshold=self.delta_threshold)
             self.files.append(path)
         note = "(vision occluded after the first step)" if vec_env.spec.occluded else ""
-        self._recording.start_episode(episode, start.target, start.link_lengths, note=note)
+        self._recording.start_episode(episode, start.target, start.link_lengths, note=note, title=self.title)
         if self.note:
             self._recording.event(episode, 0, self.note)
         self._log(start, frame)

@@ -22,8 +22,9 @@ from pathlib import Path
 
 import matplotlib
 
-from apac_mj.experiments.results import MANIFEST, Results, load_results, load_tests, result_roots
-from apac_mj.report.figures import FigureSpec, ReportData, register_figure, registered_figures, unregister_figure
+from apac_mj.experiments.results import MANIFEST, Results, completeness, load_results, load_tests, result_roots
+from apac_mj.report.figures import (DEFAULT_DPI, FigureSpec, ReportData, check_format, draw_figures, register_figure,
+                                    registered_figures, unregister_figure)
 from apac_mj.report.labels import (AGENT_COLOR, AGENT_LABEL, check_kinds, condition_colors, condition_label,
                                    condition_short)
 from apac_mj.report.markdown import report_md
@@ -32,14 +33,17 @@ from apac_mj.util.files import read_json
 
 
 def write_report(results: Results, out: str | Path | None = None, title: str | None = None,
-                 draw: bool = True) -> Path:
-    """Write every registered figure that applies (``draw=False``: none, the tables only), key_numbers.csv,
-    differences.csv and report.md into ``out`` (default: ``results/report``); returns the directory.
-    ``results``: one grid's results directory, or several read as one (e.g. cells of one preset run as
-    separate grids; each cell in only one of them, and ``out`` is then required)."""
+                 draw: bool = True, fmt: str = "png", dpi: int = DEFAULT_DPI) -> Path:
+    """Write every registered figure that applies (``draw=False``: none, the tables only; as ``fmt`` at ``dpi``),
+    key_numbers.csv, differences.csv and report.md into ``out`` (default: ``results/report``); returns the
+    directory. ``results``: one grid's results directory, or several read as one (e.g. cells of one preset run
+    as separate grids; each cell in only one of them, and ``out`` is then required). Damaged tables are refused
+    (:class:`~apac_mj.experiments.results.ResultsError`); a grid not complete is reported with a "partial"
+    notice at the top of report.md (:func:`~apac_mj.experiments.results.completeness`)."""
     roots = result_roots(results)
     if len(roots) > 1 and out is None:
         raise ValueError("several results directories need --out (the report's directory)")
+    check_format(fmt, dpi)
     metrics, tests = load_results(roots), load_tests(roots)
     check_kinds(metrics)  # before anything is written
     out = Path(out) if out else roots[0] / "report"
@@ -49,14 +53,10 @@ def write_report(results: Results, out: str | Path | None = None, title: str | N
     table.to_csv(out / "key_numbers.csv", index=False)
     diffs.to_csv(out / "differences.csv", index=False)
     data = ReportData(roots[0], metrics, tests, seed_values, table)
-    figures = [(spec, bool(spec.applies(data))) for spec in registered_figures()]
     if draw:
         matplotlib.use("Agg")  # the figures are files: no window, whatever the display
-    for spec, applies in figures:
-        (out / spec.file).unlink(missing_ok=True)  # a figure without data this time must not linger
-        if applies and draw:
-            spec.draw(data, out / spec.file)
-    manifest = _manifest(roots)
+    figures = draw_figures(data, out, fmt, dpi, draw=draw)
+    manifest = {**_manifest(roots), "partial": completeness(roots).notice()}
     (out / "report.md").write_text(report_md(title, manifest, metrics, table, diffs, figures))
     return out
 

@@ -18,10 +18,10 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 
-from apac_mj import types
+from apac_mj import kinds, types
 from apac_mj.kinematics import motion_function
 from apac_mj.report.labels import (AGENT_COLOR, AGENT_LABEL, agents, arbitrating, condition_colors, condition_label,
-                                   condition_order, condition_short, condition_spec, episodes)
+                                   condition_order, condition_short, condition_spec, episodes, planner_label)
 from apac_mj.report.quantities import (CROSSING_WINDOW, HABIT_THRESHOLD, LATE_FRACTION, habit_crossing,
                                       judged_reached, measured, time_cost, timed)
 from apac_mj.report.stats import BOOTSTRAP_SEED, LEVEL
@@ -145,12 +145,46 @@ def _band_words(metrics: pd.DataFrame) -> str:
 
 
 def _save(fig: plt.Figure, path: Path, title: str) -> Path:
-    """Suptitle wrapped to the figure's width (nothing cut off), constrained layout, 110 dpi."""
+    """Suptitle wrapped to the figure's width (nothing cut off), constrained layout; the format is ``path``'s
+    suffix, the resolution matplotlib's ``savefig.dpi`` (:func:`draw_figures` sets it; else :data:`DEFAULT_DPI`)."""
     width_in = fig.get_size_inches()[0]
     fig.suptitle(textwrap.fill(title, width=max(40, int(width_in * 11))), fontsize=11)
-    fig.savefig(path, dpi=110)
+    dpi = plt.rcParams["savefig.dpi"]
+    fig.savefig(path, dpi=DEFAULT_DPI if dpi == "figure" else dpi)
     plt.close(fig)
     return path
+
+
+#: The formats a report's figures can be written in (``apac-mj report --format``) and the default resolution.
+FORMATS, DEFAULT_DPI = ("png", "svg", "pdf"), 110
+
+
+def check_format(fmt: str, dpi: int) -> None:
+    """Refuse a figure format other than :data:`FORMATS` or a resolution outside [10, 1200] dpi."""
+    if fmt not in FORMATS:
+        raise ValueError(f"figure format must be one of {', '.join(FORMATS)}, got {fmt!r}")
+    if not 10 <= dpi <= 1200:
+        raise ValueError(f"figure dpi must be in [10, 1200], got {dpi}")
+
+
+def draw_figures(data: ReportData, out: Path, fmt: str = "png", dpi: int = DEFAULT_DPI,
+                 draw: bool = True) -> list[tuple[FigureSpec, bool]]:
+    """Draw (``draw=False``: only list) every registered figure that applies into ``out`` as ``fmt`` at ``dpi``;
+    a figure without data this time leaves no file of any format behind. Returns each figure, named as
+    written, and whether it applies."""
+    check_format(fmt, dpi)
+    drawn = []
+    with plt.rc_context({"savefig.dpi": dpi}):
+        for spec in registered_figures():
+            stem = Path(spec.file).stem
+            for suffix in FORMATS:
+                (out / f"{stem}.{suffix}").unlink(missing_ok=True)
+            spec = dataclasses.replace(spec, file=f"{stem}.{fmt}")
+            applies = bool(spec.applies(data))
+            if applies and draw:
+                spec.draw(data, out / spec.file)
+            drawn.append((spec, applies))
+    return drawn
 
 
 #: The narrowest figure (inches): one panel at 4.2 in cut its caption and labels.
@@ -163,9 +197,16 @@ def _axes(nrows: int, ncols: int, w: float = 4.2, h: float = 3.4) -> np.ndarray:
     return axes
 
 
+def _rows(ncols: Sequence[int], w: float = 4.2, h: float = 3.4) -> tuple[plt.Figure, list[list[plt.Axes]]]:
+    """A figure of rows with their own number of panels each (``ncols``): no empty slot in a shorter row."""
+    fig = plt.figure(figsize=(max(w * max(ncols), MIN_FIGURE_WIDTH), h * len(ncols)), layout="constrained")
+    subfigs = fig.subfigures(len(ncols), 1, squeeze=False)[:, 0]
+    return fig, [list(sf.subplots(1, n, squeeze=False)[0]) for sf, n in zip(subfigs, ncols)]
+
+
 def _style(ax: plt.Axes, title: str, xlabel: str, ylabel: str, ylim: tuple[float, float] | None = None) -> None:
     """Title (wrapped to the panel's width), labels, grid and legend of one panel."""
-    width_in = ax.get_position().width * ax.figure.get_size_inches()[0]
+    width_in = ax.get_position().width * ax.get_figure(root=True).get_size_inches()[0]
     width = max(20, int(width_in * 12))
     ax.set_title("\n".join(textwrap.fill(line, width=width) for line in title.split("\n")), fontsize=10)
     ax.set_xlabel(xlabel)
@@ -182,12 +223,6 @@ def _plane(ax: plt.Axes, spec: TaskSpec) -> None:
     ax.set_aspect("equal")
     ax.set_xlim(0, spec.plane_size[0])
     ax.set_ylim(0, spec.plane_size[1])
-
-
-def _hide_unused(axes: np.ndarray, used_per_row: Sequence[int]) -> None:
-    for r, used in enumerate(used_per_row):
-        for ax in axes[r, used:]:
-            ax.set_visible(False)
 
 
 #: Values in cm below this are float32 rounding, not a measured difference (positions of ~30 cm carry
@@ -243,30 +278,33 @@ def _table_mean(table: pd.DataFrame, quantity: str, agent: str, cond: str) -> fl
 # -- the paper's figures ---------------------------------------------------------------
 
 def fig_training_success(data: ReportData, path: Path) -> Path:
-    """Fig. 3: success rate during training per episode; top: per agent, bottom: per condition."""
+    """Fig. 3: success rate during training per episode; top: per agent (colour: condition), bottom: per
+    condition (colour: agent). A row that would repeat the other's lines is left out: with one condition only
+    the per-condition panel, with one agent only the per-agent one."""
     train = _train(data.metrics)
     agents_, conds, w = agents(train), condition_order(train["condition"]), _window(train)
     colors = condition_colors(data.metrics["condition"])
-    axes = _axes(2, max(len(agents_), len(conds)))
-    for i, agent in enumerate(agents_):
-        ax = axes[0, i]
+    rows = (["agent"] if len(conds) > 1 else []) + (["condition"] if len(agents_) > 1 or len(conds) == 1 else [])
+    fig, axes = _rows([len(agents_) if r == "agent" else len(conds) for r in rows])
+    by_row = dict(zip(rows, axes))
+    for i, agent in enumerate(agents_ if "agent" in by_row else []):
+        ax = by_row["agent"][i]
         for cond in conds:
             sel = train[(train["agent"] == agent) & (train["condition"] == cond)]
             if len(sel):
                 _line(ax, sel, "success", w, condition_short(cond) + ": " + condition_label(cond), colors[cond], 100)
         _style(ax, f"{AGENT_LABEL[agent]} (colour: condition)", "training episode", "success rate (%)",
                ylim=(-2, 102))
-    for j, cond in enumerate(conds):
-        ax = axes[1, j]
+    for j, cond in enumerate(conds if "condition" in by_row else []):
+        ax = by_row["condition"][j]
         for agent in agents_:
             sel = train[(train["agent"] == agent) & (train["condition"] == cond)]
             if len(sel):
                 _line(ax, sel, "success", w, AGENT_LABEL[agent], AGENT_COLOR[agent], 100)
         _style(ax, f"{condition_label(cond)} (colour: agent)", "training episode", "success rate (%)",
                ylim=(-2, 102))
-    _hide_unused(axes, [len(agents_), len(conds)])
-    return _save(axes[0, 0].figure, path, f"Fig. 3: training success (moving average over {episodes(w)}; "
-                                          f"bold: mean over seeds, {_band_words(train)})")
+    return _save(fig, path, f"Fig. 3: training success (moving average over {episodes(w)}; "
+                            f"bold: mean over seeds, {_band_words(train)})")
 
 
 def fig_test(data: ReportData, path: Path) -> Path:
@@ -296,7 +334,7 @@ def fig_arbitration(data: ReportData, path: Path) -> Path:
         for j, cond in enumerate(conds):
             sel = sel_all[(sel_all["agent"] == agent) & (sel_all["condition"] == cond)]
             _line(axes[i, j], sel, "habit_actions", w, "habitual (actor)", "tab:blue")
-            _line(axes[i, j], sel, "planning_actions", w, "planning (inverse model)", "tab:red")
+            _line(axes[i, j], sel, "planning_actions", w, planner_label(agent), "tab:red")
             title = (condition_label(cond) if len(arbitrating_kinds) == 1
                      else f"{AGENT_LABEL[agent]}, {condition_label(cond)}")
             _style(axes[i, j], title, "training episode", "actions per episode")
@@ -387,7 +425,7 @@ def fig_trajectories(data: ReportData, path: Path) -> Path:
             sel = grid[(grid["agent"] == agent) & (grid["condition"] == cond)]
             for j, (px, py) in enumerate(zip(sel["path_x"], sel["path_y"])):
                 ax.plot(px, py, color="tab:blue", lw=0.4, alpha=0.35, label="end-effector path" if j == 0 else None)
-            ax.scatter(sel["target_x"], sel["target_y"], s=6, color="red", zorder=3, label="test target")
+            _targets(ax, sel)
             _plane(ax, condition_spec(cond))
             _style(ax, f"{AGENT_LABEL[agent]}, {condition_short(cond)} ({sel['success'].mean():.0%} reached)",
                    "x (cm)", "y (cm)")
@@ -395,6 +433,20 @@ def fig_trajectories(data: ReportData, path: Path) -> Path:
         axes[0, 0].text(0.5, 0.5, "no changing-target test results", ha="center", transform=axes[0, 0].transAxes)
         _style(axes[0, 0], "trajectories", "x (cm)", "y (cm)")
     return _save(axes[0, 0].figure, path, "Fig. 7: reaching the test targets under changing targets (all seeds)")
+
+
+#: Fig. 7's test targets: reached (filled circle) and missed (cross), told apart by shape as well as colour.
+REACHED_STYLE = {"marker": "o", "color": "#009E73", "s": 10}
+MISSED_STYLE = {"marker": "x", "color": "#D55E00", "s": 14, "linewidths": 0.9}
+
+
+def _targets(ax: plt.Axes, sel: pd.DataFrame) -> None:
+    """Each test episode's target, drawn as reached or missed (one mark per seed and target)."""
+    reached = sel["success"].astype(bool).to_numpy()
+    for mask, style, word in ((reached, REACHED_STYLE, "reached"), (~reached, MISSED_STYLE, "missed")):
+        if mask.any():
+            ax.scatter(sel["target_x"][mask], sel["target_y"][mask], zorder=3,
+                       label=f"target {word} ({int(mask.sum())} of {len(mask)})", **style)
 
 
 def _region_maps(conds: list[str]) -> dict[tuple, list[str]]:
@@ -445,10 +497,13 @@ def fig_occluded(data: ReportData, path: Path) -> Path:
     occ = data.tests[data.tests["protocol"] == "occluded"]
     agents_, conds = agents(occ), condition_order(occ["condition"])
     axes = _axes(max(len(agents_), 1), max(len(conds), 1))
+    zones = [condition_spec(c).zone_radius for c in conds]
+    top = 1.9 * float(np.nanmax([occ["final_distance"].max() if len(occ) else 0.0, *zones, CM_AXIS_MIN]))
     for i, agent in enumerate(agents_):
         for j, cond in enumerate(conds):
             _occluded_panel(axes[i, j], occ[(occ["agent"] == agent) & (occ["condition"] == cond)], data.table,
                             agent, cond)
+            axes[i, j].set_ylim(0, top)  # one range for every panel (room above the data for the legend)
     if not agents_:
         axes[0, 0].text(0.5, 0.5, "no occluded-vision results", ha="center", transform=axes[0, 0].transAxes)
         _style(axes[0, 0], "occluded vision", "test target index", "final distance (cm)")
@@ -458,12 +513,13 @@ def fig_occluded(data: ReportData, path: Path) -> Path:
 
 
 def _occluded_panel(ax: plt.Axes, sel: pd.DataFrame, table: pd.DataFrame, agent: str, cond: str) -> None:
-    """One agent and condition of Fig. 9."""
+    """One agent and condition of Fig. 9: each test target on its own (targets are categories, so nothing joins
+    them): the mean over seeds as a dot, the seeds' range as a vertical bar."""
     by = sel.groupby("target_index")["final_distance"]
     x = by.mean().index.to_numpy()
-    ax.fill_between(x, by.min().to_numpy(), by.max().to_numpy(), color="tab:blue", alpha=0.35,
-                    label="min-max over seeds")
-    ax.plot(x, by.mean().to_numpy(), color="black", lw=1, label="mean over seeds")
+    ax.vlines(x, by.min().to_numpy(), by.max().to_numpy(), color="tab:blue", alpha=0.5, lw=1.5,
+              label="min-max over seeds")
+    ax.plot(x, by.mean().to_numpy(), "o", ls="none", color="black", ms=2.5, label="mean over seeds")
     judged = sel[judged_reached(sel).to_numpy()]
     if len(judged):  # the episodes the paper's blue band describes
         share = _table_mean(table, "occluded_judged_rate", agent, cond)
@@ -474,8 +530,6 @@ def _occluded_panel(ax: plt.Axes, sel: pd.DataFrame, table: pd.DataFrame, agent:
     zone = condition_spec(cond).zone_radius
     ax.axhline(zone, color="red", lw=1.2, label="target-zone radius")
     _style(ax, f"{AGENT_LABEL[agent]}, {condition_label(cond)}", "test target index", "final distance (cm)")
-    top = float(np.nanmax([sel["final_distance"].max(), zone]))
-    ax.set_ylim(0, 1.9 * top)  # room above the data for the legend
     ax.legend(fontsize=6.5, loc="upper left", framealpha=0.9)
 
 
@@ -491,30 +545,33 @@ SCOREBOARD = (
 
 
 def fig_scoreboard(data: ReportData, path: Path) -> Path:
-    """Fig. 11: every agent x condition on the quantities that weigh arbitrators and integrators."""
+    """Fig. 11: every agent x condition on the quantities that weigh arbitrators and integrators; only the
+    quantities with a value (a panel of NaN would be empty), in two columns, an odd last one spanning both."""
     table = data.table
-    panels = [p for p in SCOREBOARD if (table["quantity"] == p[0]).any()]
+    panels = [p for p in SCOREBOARD
+              if np.isfinite(table.loc[table["quantity"] == p[0], "mean"].to_numpy(dtype=float)).any()]
     sel = table[table["quantity"].isin([p[0] for p in panels])]
     agents_, conds = agents(sel), condition_order(sel["condition"])
-    ncols = 2
-    axes = _axes((len(panels) + ncols - 1) // ncols, ncols,
-                 w=min(9.0, max(4.2, 0.3 * len(agents_) * len(conds) + 1.5)))
-    for ax, (q, title, ylabel, ylim) in zip(axes.flat, panels):
+    ncols = 2 if len(panels) > 1 else 1
+    w = min(9.0, max(4.2, 0.3 * len(agents_) * len(conds) + 1.5))
+    mosaic = [[f"p{min(i + c, len(panels) - 1)}" for c in range(ncols)] for i in range(0, len(panels), ncols)]
+    fig = plt.figure(figsize=(max(w * ncols, MIN_FIGURE_WIDTH), 3.4 * len(mosaic)), layout="constrained")
+    by_name = fig.subplot_mosaic(mosaic)
+    axes = [by_name[f"p{i}"] for i in range(len(panels))]
+    for ax, (q, title, ylabel, ylim) in zip(axes, panels):
         _bars(ax, table, data.seed_values, q, conds, agents_, cm=ylabel == "cm")
         _style(ax, title, "condition", ylabel, ylim=ylim)
-    for ax in list(axes.flat)[len(panels):]:
-        ax.set_visible(False)
-    for ax in list(axes.flat)[1:len(panels)]:
+    for ax in axes[1:]:
         if ax.get_legend():
             ax.get_legend().remove()
-    return _save(axes[0, 0].figure, path, "Fig. 11: scoreboard (bars: mean over seeds with the 95% interval of "
-                                          "report.md; dots: single seeds)")
+    return _save(fig, path, "Fig. 11: scoreboard (bars: mean over seeds with the 95% interval of report.md; dots: "
+                            "single seeds)")
 
 
 #: The training losses of Fig. 10: (metrics column, panel label).
 LOSSES = tuple((f"{name}_loss", label) for name, label in zip(
-    types.LOSSES, ("critic: TD loss", "actor: -Q(s, pi(s)) (+ penalty)", "forward model: MSE (cm^2)",
-                   "inverse model: MSE (deg^2)"), strict=True))
+    types.LOSSES, ("critic: TD loss (squared return units)", "actor: -Q(s, pi(s)) (+ penalty)",
+                   "forward model: MSE (cm^2)", "inverse model: MSE (deg^2)"), strict=True))
 
 
 def fig_losses(data: ReportData, path: Path) -> Path:
@@ -534,7 +591,16 @@ def fig_losses(data: ReportData, path: Path) -> Path:
                 ax.set_yscale("log")
             _style(ax, f"{condition_label(cond)}\n{label}", "training episode", "loss (mean over seeds)")
     return _save(axes[0, 0].figure, path, f"Training losses per episode (mean of the episode's updates; "
-                                          f"moving average over {episodes(w)}, mean over seeds)")
+                                          f"moving average over {episodes(w)}, mean over seeds). {CRITIC_READING}")
+
+
+#: How to read Fig. 10's critic loss, which climbs while the agent learns (e.g. 0.5 -> 10).
+CRITIC_READING = ("Reading the critic: its TD loss, the mean of (r + gamma Q'(s', pi'(s')) - Q(s, a))^2 over replayed "
+                  "minibatches, is in squared return units (reward = -distance, cm per step) and is not a supervised "
+                  "loss that falls to 0: its targets move with the target networks, its minibatches with the replay "
+                  "buffer, and it scales with the size of Q, which the actor panel shows (-Q(s, pi(s))). Read a "
+                  "climb against that panel: sqrt(TD loss) small beside |Q| is a critic that fits; a climb while "
+                  "success falls is one that diverges.")
 
 
 def _has_training(data: ReportData) -> bool:
@@ -576,3 +642,28 @@ PAPER_FIGURES = (
 )
 for _spec in PAPER_FIGURES:
     register_figure(_spec)
+
+
+# -- one run -----------------------------------------------------------------------------
+
+def fig_run(metrics: pd.DataFrame, kind: str, task: str, name: str, path: Path) -> Path:
+    """Learning curves of one run (``apac-mj report --run``): training success, steps per episode and, for a
+    kind that arbitrates, its habitual share of the actions; moving averages per seed, bold the mean over seeds."""
+    train = metrics[metrics["phase"] == "train"].copy()
+    if train.empty:
+        raise ValueError(f"run {name} has no training episode yet (only babbling): nothing to plot; "
+                         "rerun apac-mj report --run once training has started")
+    train["habit_share"] = train["habit_actions"] / (train["habit_actions"] + train["planning_actions"]).clip(lower=1)
+    w, color = _window(train), AGENT_COLOR[kind]
+    panels = [("success", "training success", "success rate (%)", 100, (-2, 102)),
+              ("steps", "action steps per episode", "action steps", 1, None)]
+    if kinds.get(kind).arbitrates:
+        panels.append(("habit_share", "habitual share of the actions", "habit share (%)", 100, (-2, 102)))
+    axes = _axes(1, len(panels), w=4.0)[0]
+    for ax, (column, title, ylabel, scale, ylim) in zip(axes, panels):
+        _line(ax, train, column, w, "mean over seeds", color, scale)
+        _style(ax, title, "training episode", ylabel, ylim=ylim)
+    return _save(axes[0].figure, path, f"{name}: {AGENT_LABEL[kind]} on {condition_label(task)}, "
+                                       f"{train['seed'].nunique()} seed(s), {episodes(int(train['episode'].max()) + 1)}"
+                                       f" (moving average over {episodes(w)}; {_band_words(train)})")
+

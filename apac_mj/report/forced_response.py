@@ -19,16 +19,77 @@ SHORT_MS, LONG_MS = 150.0, 900.0
 _RATES = ("correct", "habitual", "other", "timeout", "error")
 
 
+class TestTableError(ValueError):
+    """A test table (``tests/p<episodes>/<kind>.parquet``) that cannot be what a test wrote: the message names
+    the file, the column and the rows. Nothing was written."""
+
+    __test__ = False  # not a pytest class
+
+
+#: A test table's count columns (integers >= 0): the outcomes and who acted, each set summing to the trials.
+COUNTS = ("correct", "habitual", "other", "timeout", "habit_acted", "planner_acted", "default_acted")
+#: What one row is: a seed's variant at a preparation time and cue.
+ROW_KEY = ["seed", "variant", "prep_ms", "cue"]
+
+
 def load_tests(study: str | Path) -> pd.DataFrame:
-    """Every test table of a study, with its practice length (``practice`` column)."""
+    """Every test table of a study, with its practice length (``practice`` column), each checked
+    (:func:`check_table`); a folder under ``tests/`` that is not ``p<episodes>`` is refused."""
     frames = []
-    for path in sorted(Path(study, "tests").glob("p*/*.parquet")):
+    for path in sorted(Path(study, "tests").glob("*/*.parquet")):
+        name = path.parent.name
+        if not (name.startswith("p") and name[1:].isdigit() and int(name[1:]) >= 1):
+            raise TestTableError(f"{path}: {path.parent} is not a practice folder (p<episodes>, e.g. p100); move it "
+                                 "out of tests/ (nothing was written)")
         df = pd.read_parquet(path)
-        df["practice"] = int(path.parent.name[1:])
+        check_table(df, path, int(name[1:]))
+        df["practice"] = int(name[1:])
         frames.append(df)
     if not frames:
         raise FileNotFoundError(f"{study}: no tests/p<episodes>/<kind>.parquet (run apac-mj forced-response run)")
     return pd.concat(frames, ignore_index=True)
+
+
+def check_table(df: pd.DataFrame, path: Path, practice: int) -> None:
+    """``df`` is a test table as :func:`apac_mj.run.forced_response.test_run` writes it: every column, finite
+    counts >= 0 that sum to ``trials`` (>= 1) per row, outcomes and actors alike, one row per seed, variant,
+    preparation time and cue, and (where recorded) networks from episode ``practice``; else
+    :class:`TestTableError`."""
+    from apac_mj.run.timing import COLUMNS
+
+    def refuse(problem: str, rows: pd.Series | None = None) -> None:
+        where = "" if rows is None else f" (rows {_rows(rows)})"
+        raise TestTableError(f"{path}: {problem}{where}; the table was damaged or edited: remove it and run its "
+                             "test again (apac-mj forced-response run --out STUDY resumes it); nothing was written")
+
+    missing = [c for c in COLUMNS if c != "episode" and c not in df.columns]
+    if missing:
+        refuse(f"missing column(s) {missing}")
+    if df.empty:
+        refuse("no rows")
+    for c in ("seed", "cue", "trials", *COUNTS, "prep_ms"):
+        v = pd.to_numeric(df[c], errors="coerce").astype(float)
+        if (bad := ~np.isfinite(v)).any():
+            refuse(f"column {c!r} is not a finite number", bad)
+        if c != "prep_ms" and (bad := (v < (1 if c == "trials" else 0)) | (v != np.round(v))).any():
+            refuse(f"column {c!r} must hold integers >= {1 if c == 'trials' else 0}", bad)
+    if (bad := ~df["remapped"].isin([True, False])).any():
+        refuse("column 'remapped' must be True or False", bad)
+    if (bad := df["prep_ms"].astype(float) <= 0).any():
+        refuse("column 'prep_ms' must be > 0 ms", bad)
+    for group in (COUNTS[:4], COUNTS[4:]):
+        if (bad := df[list(group)].sum(axis=1) != df["trials"]).any():
+            refuse(f"the counts {list(group)} do not sum to 'trials'", bad)
+    if (bad := df.duplicated(ROW_KEY, keep=False)).any():
+        refuse(f"duplicated rows (one row per {', '.join(ROW_KEY)})", bad)
+    if "episode" in df.columns and (bad := df["episode"] != practice).any():
+        refuse(f"networks from episode(s) {sorted(set(df.episode[bad].tolist()))}, not this folder's {practice}", bad)
+
+
+def _rows(mask: pd.Series) -> str:
+    """The row numbers of ``mask`` (the first 5, and how many in all)."""
+    rows = np.flatnonzero(np.asarray(mask))
+    return ", ".join(map(str, rows[:5])) + (f", ... ({len(rows)} in all)" if len(rows) > 5 else "")
 
 
 def per_seed(tests: pd.DataFrame) -> pd.DataFrame:
@@ -45,11 +106,14 @@ def per_seed(tests: pd.DataFrame) -> pd.DataFrame:
 
 
 def bootstrap(values: np.ndarray, resamples: int = 2000, seed: int = 0) -> tuple[float, float, float]:
-    """Mean and 95% bootstrap interval of ``values`` (one per seed)."""
+    """Mean and 95% interval of ``values`` (one per seed, probabilities): the report's measured interval
+    (:func:`apac_mj.report.stats.seed_interval`, issue 41; a percentile bootstrap before, which undercovered);
+    ``resamples`` and ``seed`` are kept for callers and unused."""
+    from apac_mj.report.stats import seed_interval
+
     v = np.asarray(values, dtype=float)
-    rng = np.random.default_rng(seed)
-    means = v[rng.integers(0, len(v), (resamples, len(v)))].mean(1)
-    return float(v.mean()), float(np.quantile(means, 0.025)), float(np.quantile(means, 0.975))
+    lo, hi = seed_interval(v, (0.0, 1.0))
+    return float(v.mean()), lo, hi
 
 
 def curves(seeds: pd.DataFrame) -> pd.DataFrame:
@@ -128,7 +192,7 @@ def figure(curve: pd.DataFrame, out: str | Path, human: pd.DataFrame | None = No
             for p, shade in zip(practices, shades):
                 g = curve[(curve.variant == v) & (curve.remapped == remapped) & (curve.practice == p)]
                 g = g.sort_values("prep_ms")
-                for rate, color in (("correct", "tab:green"), ("habitual" if remapped else "error", "tab:red")):
+                for rate, color in (("correct", "#0072B2"), ("habitual" if remapped else "error", "#D55E00")):
                     ax.plot(g.prep_ms, g[rate], color=color, alpha=shade, lw=1.6,
                             label=f"{'P(correct)' if rate == 'correct' else 'P(habitual error)' if remapped else 'P(error)'}"
                                   f", {p} episodes")
@@ -164,16 +228,15 @@ def _human(ax, human: pd.DataFrame | None, remapped: bool) -> None:
         ax.plot(g.prep_ms, wrong, color="0.35", ls=ls, lw=1)
 
 
-def write_report(study: str | Path, human: str | Path | None = None) -> Path:
-    """The report of a study's tests: ``curves.csv``, ``peaks.csv``, ``forced_response.png`` under
-    ``study/report``; ``human``: the human curves' CSV (default: the published one, if present)."""
-    import pandas as pd
-
+def write_report(study: str | Path, human: str | Path | None = None, out: str | Path | None = None) -> Path:
+    """The report of a study's tests (each checked first: :func:`load_tests`): ``curves.csv``, ``peaks.csv``,
+    ``forced_response.png`` under ``out`` (default ``study/report``); ``human``: the human curves' CSV (default:
+    the published one, if present)."""
     from apac_mj.util import paths
 
-    out = Path(study) / "report"
-    out.mkdir(parents=True, exist_ok=True)
     seeds = per_seed(load_tests(study))
+    out = Path(study) / "report" if out is None else Path(out)
+    out.mkdir(parents=True, exist_ok=True)
     curve, peak = curves(seeds), peaks(seeds)
     curve.round(4).to_csv(out / "curves.csv", index=False)
     peak.round(4).to_csv(out / "peaks.csv", index=False)

@@ -35,8 +35,52 @@ class _KindView(Mapping):
         return len(kinds.names())
 
 
-#: Figure and table labels and colours of the agent kinds, read from the registry.
-AGENT_LABEL, AGENT_COLOR = _KindView("label"), _KindView("color")
+#: Colour-blind-safe colours for the agent kinds, taken in this order: Okabe & Ito's qualitative palette
+#: (orange, bluish green, blue, reddish purple, vermillion, sky blue; its yellow last, its black left out: the
+#: figures draw single seeds and means in black), then Paul Tol's "muted" scheme (both designed to stay distinct
+#: for protan, deutan and tritan vision; https://jfly.uni-koeln.de/color/, https://personal.sron.nl/~pault/).
+SAFE_PALETTE = ("#E69F00", "#009E73", "#0072B2", "#CC79A7", "#D55E00", "#56B4E9",
+                "#332288", "#999933", "#882255", "#44AA99", "#CC6677", "#AA4499", "#117733", "#88CCEE", "#DDCC77",
+                "#F0E442")
+
+
+def kind_colors() -> dict[str, str]:
+    """Each registered kind's figure colour: its registered ``color`` where that is a :data:`SAFE_PALETTE`
+    colour no earlier kind took, else the first palette colour no kind has (in registry order; the built-in kinds
+    are registered with palette colours: DDPG orange, SPAC green, APAC blue).
+    Distinct for up to ``len(SAFE_PALETTE)`` kinds; past that the palette starts over."""
+    names = kinds.names()
+    own = {n: kinds.get(n).color.upper() for n in names}
+    colors: dict[str, str] = {}
+    for n in names:
+        if own[n] in SAFE_PALETTE and own[n] not in colors.values():
+            colors[n] = own[n]
+    free = [c for c in SAFE_PALETTE if c not in colors.values()]
+    for i, n in enumerate(n for n in names if n not in colors):
+        colors[n] = free[i] if i < len(free) else SAFE_PALETTE[(i - len(free)) % len(SAFE_PALETTE)]
+    return colors
+
+
+class _ColorView(_KindView):
+    """A live read-only view ``kind name -> figure colour`` (:func:`kind_colors`)."""
+
+    def __getitem__(self, name: str) -> str:
+        kinds.get(name)  # an unknown kind: the registry's error
+        return kind_colors()[name]
+
+
+#: Figure and table labels of the agent kinds (read from the registry) and their colour-blind-safe colours.
+AGENT_LABEL, AGENT_COLOR = _KindView("label"), _ColorView("color")
+
+#: How figures call a planner (:mod:`apac_mj.systems`) in "planning (...)"; a planner not named here by its name.
+PLANNER_WORDS = {"inverse": "inverse model", "mpc": "MPC through the forward model"}
+
+
+def planner_label(kind: str) -> str:
+    """What the planning actions of ``kind`` are called in figures: "planning (inverse model)" for the paper's
+    kinds, "planning (MPC through the forward model)" for the MPC kinds, else after the kind's planner."""
+    planner = kinds.get(kind).planner
+    return f"planning ({PLANNER_WORDS.get(planner, planner)})"
 #: Colours for conditions without their own, taken in this order (none of them a built-in agent's or a
 #: shipped condition's).
 EXTRA_COLORS = ("tab:gray", "tab:red", "gold", "navy", "darkgoldenrod", "slateblue", "olivedrab", "deeppink",

@@ -15,7 +15,7 @@ import pandas as pd
 
 from apac_mj import kinds
 from apac_mj.report.labels import AGENT_LABEL, arbitrating, condition_order, condition_short, condition_spec
-from apac_mj.report.stats import interval, newcombe_interval, paired_difference
+from apac_mj.report.stats import METHOD, RATE_METHOD, interval, newcombe_interval, paired_difference
 from apac_mj.run.run_dir import TIMING_COLUMNS
 from apac_mj.types import HABIT_COST, PLANNING_COST
 
@@ -287,14 +287,15 @@ def key_numbers(seed_values: pd.DataFrame) -> pd.DataFrame:
     out = []
     for (q, agent, cond), grp in seed_values.groupby(["quantity", "agent", "condition"], sort=False):
         rate = is_rate(q)
-        mean, lo, hi = interval(grp["value"].tolist(), grp["k"] if rate else None, grp["n"] if rate else None)
+        mean, lo, hi = interval(grp["value"].tolist(), grp["k"] if rate else None, grp["n"] if rate else None,
+                                bounds=(0.0, math.inf))  # every key number is non-negative
         fig, desc, unit = QUANTITIES[q]
         per = grp.sort_values("seed")
         out.append({"figure": fig, "quantity": q, "description": desc, "unit": unit, "agent": agent,
                     "condition": cond, "n_seeds": int(grp["value"].notna().sum()), "samples": int(grp["n"].sum()),
                     "samples_of": int(grp["of"].sum()) if grp["of"].notna().any() else None,
                     "mean": mean, "ci95_low": lo, "ci95_high": hi,
-                    "interval": "bootstrap over seeds + Wilson (pooled count)" if rate else "bootstrap over seeds",
+                    "interval": RATE_METHOD if rate else METHOD,
                     "per_seed": "; ".join(f"{int(s)}: {fmt(v)}" for s, v in zip(per["seed"], per["value"])),
                     "paper": paper_value(q, agent, cond)})
     df = pd.DataFrame(out)
@@ -349,18 +350,19 @@ def _difference(seed_values: pd.DataFrame, q: str, one: tuple[str, str], other: 
             "unit": "points" if is_rate(q) else QUANTITIES[q][2],
             "n_seeds": int(min(ra["value"].notna().sum(), rb["value"].notna().sum())),
             "difference": diff, "ci95_low": lo, "ci95_high": hi,
-            "interval": ("paired bootstrap over seeds" if paired else "bootstrap over seeds (unpaired)")
+            "interval": ("paired " + METHOD if paired else "Welch t over seeds (unpaired)")
             + (" + Newcombe (pooled counts)" if is_rate(q) else "")}
 
 
 def seed_difference(q: str, a: pd.DataFrame, b: pd.DataFrame) -> tuple[float, float, float, bool]:
     """``a - b`` of quantity ``q``'s per-seed rows (indexed by seed; ``value``, ``k``, ``n``): the paired
-    bootstrap interval over seeds, for a rate widened to contain the pooled counts' Newcombe interval, as
-    rates are in :func:`key_numbers`. Returns (difference, low, high, paired)."""
-    diff, lo, hi, paired = paired_difference(a["value"], b["value"])
-    if is_rate(q):
+    interval over seeds (:func:`~apac_mj.report.stats.paired_difference`), for a rate widened to contain the
+    pooled counts' Newcombe interval, as rates are in :func:`key_numbers`; none with too few seeds.
+    Returns (difference, low, high, paired)."""
+    diff, lo, hi, paired = paired_difference(a["value"], b["value"], bounds=(-100.0, 100.0) if is_rate(q) else None)
+    if is_rate(q) and not math.isnan(lo):
         nlo, nhi = newcombe_interval(a["k"].sum(), a["n"].sum(), b["k"].sum(), b["n"].sum())
-        lo, hi = (100 * nlo, 100 * nhi) if math.isnan(lo) else (min(lo, 100 * nlo), max(hi, 100 * nhi))
+        lo, hi = min(lo, 100 * nlo), max(hi, 100 * nhi)
     return diff, lo, hi, paired
 
 

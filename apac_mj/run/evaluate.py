@@ -34,7 +34,6 @@ from typing import Any, Sequence
 
 import numpy as np
 import pandas as pd
-from tqdm.auto import tqdm
 
 from apac_mj.agent.agent import Agent
 from apac_mj.config import TrainConfig
@@ -48,6 +47,7 @@ from apac_mj.suite.task_spec import TaskSpec
 from apac_mj.suite.vec_env import VecEnv
 from apac_mj.types import HABIT_COST, PLANNING_COST
 from apac_mj.util.threads import torch_threads
+from apac_mj.util.progress import progress_iter
 
 PROTOCOLS = ("grid", "occluded", "generalization")
 #: Environment zone radius in the occluded protocol: its reach test never fires.
@@ -106,7 +106,8 @@ def _evaluate(run: RunDir, protocols: Sequence[str], region: str | None, device:
     except ValueError:  # a damaged eval/summary.json: written anew
         summary = {}
     summary.update(run_dir=str(run.path), agent=cfg.agent.kind, task=cfg.task, seeds=list(cfg.seeds),
-                   finished=run.finished())
+                   finished=run.is_final(ckpt),  # not networks read from previous.pt past a damaged latest.pt
+                   network_episodes=[ckpt.member_episode(k) for k in range(len(cfg.seeds))])
     for protocol in protocols:
         if protocol not in tested:
             reason = kind.occluded_reason or f"{kind.label} does not act without vision"
@@ -189,7 +190,8 @@ def run_protocol(cfg: TrainConfig, agent: Agent, spec: TaskSpec, lengths: np.nda
     episodes.load_state_dict(running or {})
     counts = np.array([len(t) for t in targets])
     rows = []
-    for i in tqdm(range(int(counts.max(initial=0))), disable=not progress, desc=label, unit="target"):
+    n = int(counts.max(initial=0))
+    for i in progress_iter(range(n), n, label, "target", enabled=progress):  # plain lines off a terminal
         members = counts > i
         padded = np.stack([t[i] if len(t) > i else np.zeros(2) for t in targets])
         env.set_target_override(padded, members)
@@ -209,20 +211,31 @@ def _episode(cfg: TrainConfig, episodes: EpisodeLoop, spec: TaskSpec, members: n
         for k in np.flatnonzero(stepped):
             path[k].append(info.true_arm[k, :2].copy())
         judged |= stepped & info.terminal & (info.done | occluded)
-    return [_row(env, k, index, st, path, spec.zone_radius, bool(judged[k])) for k in np.flatnonzero(members)]
+    return [_row(env, k, index, st, path, spec.zone_radius, bool(judged[k]), spec.stop_speed)
+            for k in np.flatnonzero(members)]
 
 
 def _row(env: VecEnv, k: int, index: int, st: EpisodeState, path: list[list[np.ndarray]], zone_radius: float,
-         judged: bool) -> dict[str, Any]:
-    """One result row; ``judged_reached``: the episode ended because the agent judged the target
-    reached (with vision: it was; occluded: the forward model's estimate was inside the zone)."""
+         judged: bool, stop_speed: float | None = None) -> dict[str, Any]:
+    """One result row; ``success``: the hand ended where the task counts the target reached (inside the zone and,
+    on a stop task, stopped: a hand still moving through the zone at the time limit is a failure);
+    ``judged_reached``: the episode ended because the agent judged the target reached (with vision: it was;
+    occluded: the forward model's estimate was inside the zone)."""
     target, distance, p, measures = env.targets()[k], float(env.distances()[k]), np.array(path[k]), st.summary(k)
     row = {"seed": env.seeds[k], "target_index": index, "target_x": float(target[0]), "target_y": float(target[1]),
-           "success": distance <= zone_radius, "final_distance": distance, "judged_reached": judged,
+           "success": reached(env, k, distance, zone_radius, stop_speed), "final_distance": distance,
+           "judged_reached": judged,
            "time_cost": time_cost(measures["habit_actions"], measures["planning_actions"]),
            "path_x": p[:, 0].tolist(), "path_y": p[:, 1].tolist(), **measures}
     order = [*COLUMNS, "path_x", "path_y", *MEASURED_COLUMNS]
     return {**{c: row[c] for c in order}, **{c: v for c, v in row.items() if c not in order}}
+
+
+def reached(env: VecEnv, k: int, distance: float, zone_radius: float, stop_speed: float | None) -> bool:
+    """Member ``k`` ended where its task counts the target reached: within ``zone_radius`` of it and, on a stop
+    task (``stop_speed`` deg/s), with every joint at most that fast. The task's own zone is not read: the
+    occluded protocol runs the environment with an unreachable one."""
+    return bool(distance <= zone_radius and (stop_speed is None or env.stopped(stop_speed)[k]))
 
 
 def time_cost(habit_actions: int, planning_actions: int) -> int:

@@ -31,7 +31,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 from pathlib import Path
-from typing import TYPE_CHECKING, Sequence
+from typing import TYPE_CHECKING, Callable, Sequence
 
 import numpy as np
 import torch
@@ -41,8 +41,8 @@ from apac_mj.config import AgentConfig, TrainConfig
 from apac_mj.rules import MPCParams
 from apac_mj.run.build import LoadedRun, episode_loop, load_run
 from apac_mj.run.rollout import EpisodeLoop, Hook
-from apac_mj.run.run_dir import RunDir
-from apac_mj.run.timing import TestPlan, Timing
+from apac_mj.run.run_dir import RunDir, say
+from apac_mj.run.timing import ACTORS, COLUMNS, OUTCOMES, TestPlan, Timing
 from apac_mj.run.variants import IMAGINED
 from apac_mj.suite.task_spec import Cues
 from apac_mj.types import END, TARGET, ArbitrationContext, Arbitrator, Decision, WorldModel
@@ -50,10 +50,6 @@ from apac_mj.types import END, TARGET, ArbitrationContext, Arbitrator, Decision,
 if TYPE_CHECKING:
     import pandas as pd
 
-#: Outcomes of a trial, in the order of the count columns.
-OUTCOMES = ("correct", "habitual", "other", "timeout")
-#: Which candidate a trial executed (the ``acted`` columns).
-ACTORS = ("habit", "planner", "default")
 #: The hand moved less than this (cm) from its start: no movement (a time-out).
 STILL_CM = 1.0
 
@@ -201,11 +197,11 @@ def movement(loop: EpisodeLoop, committed: Arbitrator, hooks: Sequence[Hook] = (
     return loop.env.true_arm()[:, END].copy()
 
 
-def no_movement(loop: EpisodeLoop, hooks: Sequence[Hook] = ()) -> None:
-    """A time-out as ``hooks`` see it: one step of every member with a zero command."""
+def no_movement(loop: EpisodeLoop, hooks: Sequence[Hook] = (), episode: int = 0) -> None:
+    """A time-out as ``hooks`` see it (as ``episode``): one step of every member with a zero command."""
     run, everyone = loop.with_arbitrator(Committed(True), hooks), np.ones(loop.env.E, dtype=bool)
     st = run.begin(everyone)
-    info = run.act(st, everyone, np.zeros(loop.env.E, dtype=np.int64), explore=False,
+    info = run.act(st, everyone, np.full(loop.env.E, episode, dtype=np.int64), explore=False,
                    override=lambda a, h: (torch.zeros_like(a), h))
     run.advance(st, info, everyone)
 
@@ -263,19 +259,21 @@ def simulate(c: Candidates, timing: Timing, prep_times_ms: Sequence[float], tria
     return {"outcomes": outcomes, "acted": acted}
 
 
-#: The columns of a test's table (one row per seed, variant, preparation time and cue).
-COLUMNS = ("seed", "variant", "prep_ms", "cue", "remapped", "trials", *OUTCOMES, *(f"{a}_acted" for a in ACTORS))
-
-
-def frozen_loop(run_dir: str | Path, device: str | None = None) -> tuple[LoadedRun, EpisodeLoop]:
+def frozen_loop(run_dir: str | Path, device: str | None = None,
+                warn: Callable[[str], None] = say) -> tuple[LoadedRun, EpisodeLoop]:
     """A trained run on a cued task, frozen: its agent with the checkpoint's weights in the test's environments
     (the task read once, E environments, each member at its end-of-training lengths) and the episode loop with
     the kind's arbitrator and planner and the checkpoint's running statistics. A task without remapped cues is
-    refused before the networks are loaded."""
+    refused before the networks are loaded. Loaded as the run's one user (its lock: a run being trained is
+    refused, naming the training's PID); a run not finished (stopped or killed) is ``warn``-ed about, naming the
+    episode its networks are from (:func:`networks_episode`)."""
     from apac_mj.run.evaluate import eval_env
     from apac_mj.suite import spec_for
 
-    cfg = RunDir(run_dir).train_config()
+    run = RunDir(run_dir)
+    if (problem := run.problem()) is not None:
+        raise FileNotFoundError(problem)
+    cfg = run.train_config()
     spec = spec_for(cfg)
     if not spec.cued:
         raise ValueError(f"the forced-response test needs a cued task ([cues] in its file); run {run_dir} trained on "
@@ -283,26 +281,49 @@ def frozen_loop(run_dir: str | Path, device: str | None = None) -> tuple[LoadedR
     if not spec.cues.swap:
         raise ValueError(f"task {cfg.task!r}: [cues] swap names no cues to remap")
     env = eval_env(cfg, spec, None, occluded=False)
-    loaded = load_run(run_dir, device, env=env, spec=spec)
+    with run.lock():  # not while it trains: a training holds the lock (refused, naming its PID)
+        loaded = load_run(run_dir, device, env=env, spec=spec)
+        finished = run.finished()
+    if not finished:
+        warn(f"warning: {run_dir} is not finished (no DONE: training was stopped or killed); its newest checkpoint's "
+             f"networks are from episode {networks_episode(loaded)} of {cfg.episodes} (the table's episode column). "
+             "Run the same apac-mj train command again to finish it")
     env.set_link_lengths(loaded.ckpt.member_lengths())
     loop = episode_loop(loaded.agent, env, zone_radius=spec.zone_radius, adapt=False)
     loop.load_state_dict(loaded.ckpt.running_statistics())
     return loaded, loop
 
 
+def member_episodes(loaded: LoadedRun) -> list[int]:
+    """How many training episodes each member's loaded networks had (babbling not counted)."""
+    return [max(0, loaded.ckpt.member_episode(k)) for k in range(len(loaded.cfg.seeds))]
+
+
+def networks_episode(loaded: LoadedRun) -> int:
+    """How many training episodes the loaded networks had: the slowest member's (:func:`member_episodes`)."""
+    return min(member_episodes(loaded))
+
+
 def test_run(run_dir: str | Path, prep_times_ms: Sequence[float], timing: Timing = Timing(), trials: int = 100,
-             repeats: int = 3, seed: int = 0, device: str | None = None) -> pd.DataFrame:
+             repeats: int = 3, seed: int = 0, device: str | None = None,
+             expect_episodes: int | None = None) -> pd.DataFrame:
     """The forced-response test of a trained run on a cued task (frozen, the remapped mapping): a table of
-    outcome counts (:data:`COLUMNS`) for each of the kind's :func:`variants`. Settings are checked before the
-    run is loaded."""
+    outcome counts (:data:`COLUMNS`; ``episode``: each seed's networks' training episodes) for each of the kind's
+    :func:`variants`. Settings are checked before the run is loaded. ``expect_episodes``: the networks must be
+    from that episode (a study's practice length), else a RuntimeError (nothing written)."""
     plan = TestPlan(tuple(float(t) for t in np.asarray(prep_times_ms, dtype=float).ravel()), trials, repeats,
                     seed, timing)
     loaded, loop = frozen_loop(run_dir, device)
+    episode = networks_episode(loaded)
+    if expect_episodes is not None and episode != expect_episodes:
+        raise RuntimeError(f"{run_dir}: the networks are from episode {episode}, not {expect_episodes} (another "
+                           "process changed the run); nothing was written")
     fresh = copy.deepcopy(loop.state_dict())  # every variant starts from the checkpoint's statistics and plan
     rows: list[dict] = []
     for variant in variants(loaded.cfg.agent, loop.arbitrator):
         loop.load_state_dict(copy.deepcopy(fresh))
-        rows += _rows(loaded.cfg, loaded.spec.cues, variant, plan, _counts(loop, loaded.cfg, variant, plan))
+        rows += _rows(loaded.cfg, loaded.spec.cues, variant, plan, _counts(loop, loaded.cfg, variant, plan),
+                      member_episodes(loaded))
     import pandas as pd
 
     return pd.DataFrame(rows, columns=list(COLUMNS))
@@ -316,13 +337,15 @@ def _counts(loop: EpisodeLoop, cfg: TrainConfig, variant: str, plan: TestPlan) -
                     iteration_ms(cfg.agent, plan.timing))
 
 
-def _rows(cfg: TrainConfig, cues: Cues, variant: str, plan: TestPlan, counts: dict[str, np.ndarray]) -> list[dict]:
-    """The table's rows of one variant (:data:`COLUMNS`)."""
+def _rows(cfg: TrainConfig, cues: Cues, variant: str, plan: TestPlan, counts: dict[str, np.ndarray],
+          episodes: list[int]) -> list[dict]:
+    """The table's rows of one variant (:data:`COLUMNS`), member k's networks from training episode
+    ``episodes[k]``."""
     rows = []
     for k, s in enumerate(cfg.seeds):
         for cue in range(cues.n):
             for i, t in enumerate(plan.prep_times_ms):
-                rows.append({"seed": int(s), "variant": variant, "prep_ms": float(t), "cue": cue,
+                rows.append({"seed": int(s), "episode": episodes[k], "variant": variant, "prep_ms": float(t), "cue": cue,
                              "remapped": cue in cues.remapped, "trials": plan.trials,
                              **dict(zip(OUTCOMES, counts["outcomes"][k, cue, i].tolist())),
                              **dict(zip((f"{a}_acted" for a in ACTORS), counts["acted"][k, cue, i].tolist()))})

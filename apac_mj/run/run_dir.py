@@ -85,6 +85,11 @@ class RunMismatch(ValueError):
     checkpoint is tried: the checkpoints are intact."""
 
 
+class StaleCheckpoint(RunMismatch):
+    """A finished run's latest.pt holds a member short of the run's episode count: an older checkpoint was put
+    in its place. The message names the file, the members and the way out; nothing was written."""
+
+
 def say(message: str) -> None:
     """A message to the user about a run (stderr, so stdout stays machine-readable)."""
     print(message, file=sys.stderr, flush=True)
@@ -368,11 +373,36 @@ class RunDir:
                               "records what was trained. Put config.json back to the checkpoint's values (nothing "
                               "was changed; the run is intact), or train into another --out")
         was, says = trained.get("episodes"), stored.get("episodes")
-        if says != was and (self.finished() or not isinstance(says, int) or says < was):
+        final = self.is_final(ckpt)
+        if says != was and (final or not isinstance(says, int) or says < was):
             raise RunMismatch(f"{self.path / CONFIG} says {says!r} episodes but the run's checkpoint {ckpt.path} "
-                              f"holds a run of {was}{' (finished)' if self.finished() else ''}: config.json was "
+                              f"holds a run of {was}{' (finished)' if final else ''}: config.json was "
                               f"edited. Put \"episodes\": {was} back (nothing was changed; the run is intact); a "
                               f"larger --episodes then extends it")
+        if final:
+            self.check_not_stale(ckpt)
+
+    def is_final(self, ckpt: RunCheckpoint) -> bool:
+        """``ckpt`` is the finished run's final checkpoint: DONE is there and ``ckpt`` is latest.pt. An older
+        checkpoint loaded past a damaged latest.pt (previous.pt, say from before an extension) is not: the run
+        is then resumed from it, and its episode count may be below config.json's."""
+        return self.finished() and ckpt.path.name == LATEST
+
+    def check_not_stale(self, ckpt: RunCheckpoint) -> None:
+        """Every member of a finished run's latest.pt reached the run's episode count; else
+        :class:`StaleCheckpoint` (an older checkpoint copied or restored over latest.pt)."""
+        if "loop" not in ckpt.data:  # read for its networks only (config-only loads): nothing to compare
+            return
+        episodes = int(self.config()["episodes"])
+        behind = {k: ckpt.member_episode(k) for k in range(len(ckpt.loop["episode"]))
+                  if ckpt.member_episode(k) < episodes}
+        if behind:
+            at = ", ".join(f"seed index {k} at episode {e}" for k, e in behind.items())
+            raise StaleCheckpoint(f"{ckpt.path} is older than the run: it holds {at}, but {self.path} finished "
+                                  f"{episodes} episodes ({self.path / DONE} is there); an older checkpoint was "
+                                  "copied or restored over latest.pt. Put the run's final latest.pt back, or delete "
+                                  f"{self.path / DONE} and rerun apac-mj train with the same settings to train the "
+                                  "missing episodes again from it (nothing was changed)")
 
     def _check_against_newest_checkpoint(self) -> None:
         """:meth:`check_config` with the newest checkpoint that loads (quietly: none loads, no check)."""

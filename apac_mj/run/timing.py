@@ -1,5 +1,5 @@
-"""Time in a forced-response decision (:mod:`apac_mj.run.forced_response`), torch-free so that the command
-line can list its fields without loading torch."""
+"""Time in a forced-response decision (:mod:`apac_mj.run.forced_response`) and the columns of its test's table,
+torch-free so that the command line can list its fields, and the report check its tables, without loading torch."""
 from __future__ import annotations
 
 import dataclasses
@@ -7,6 +7,15 @@ import math
 from typing import Sequence
 
 import numpy as np
+
+#: Outcomes of a trial, in the order of the count columns.
+OUTCOMES = ("correct", "habitual", "other", "timeout")
+#: Which candidate a trial executed (the ``acted`` columns).
+ACTORS = ("habit", "planner", "default")
+#: The columns of a test's table (one row per seed, variant, preparation time and cue; ``episode``: the training
+#: episodes of the tested networks, absent from tables written before it).
+COLUMNS = ("seed", "episode", "variant", "prep_ms", "cue", "remapped", "trials", *OUTCOMES,
+           *(f"{a}_acted" for a in ACTORS))
 
 
 @dataclasses.dataclass(frozen=True)

@@ -52,6 +52,8 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
+from apac_mj.util.progress import progress_bar
+
 from apac_mj.agent import precision as precisions
 from apac_mj.config import PRECISIONS, AgentConfig, TrainConfig
 from apac_mj.run.build import Run, build, check, task_record
@@ -303,8 +305,8 @@ def resolved_precision(cfg: TrainConfig, run: RunDir) -> TrainConfig:
 def _progress_bar(cfg: TrainConfig, loop: LoopState, rows: list[dict[str, Any]],
                   progress: bool) -> tuple[tqdm, collections.deque]:
     """The episode bar and its window of the last episodes' (success, habit, planning) of all seeds."""
-    bar = tqdm(total=cfg.episodes, initial=min(loop.slowest(), cfg.episodes), disable=not progress,
-               desc=f"{cfg.agent.kind} {cfg.task} x{len(cfg.seeds)}", unit="ep")
+    bar = progress_bar(cfg.episodes, f"{cfg.agent.kind} {cfg.task} x{len(cfg.seeds)}", "ep",
+                       initial=min(loop.slowest(), cfg.episodes), enabled=progress)  # plain lines off a terminal
     window = collections.deque(((r["success"], r["habit_actions"], r["planning_actions"])
                                 for r in rows if r["phase"] == "train"), maxlen=PROGRESS_WINDOW * len(cfg.seeds))
     _say_babbling(bar, loop, cfg.agent.babbling_episodes)
@@ -317,8 +319,9 @@ def _say_babbling(bar: tqdm, loop: LoopState, babbling: int) -> None:
         return
     first = int(loop.episode.min())
     label = f"motor babbling: episode {babbling + first + 1} of {babbling}"
-    if first < 0 and bar.postfix != label:
-        bar.set_postfix_str(label)
+    if first < 0:  # the label once per babbling episode (it was cleared and set again at every step)
+        if bar.postfix != label:
+            bar.set_postfix_str(label)
     elif str(bar.postfix or "").startswith("motor babbling"):
         bar.set_postfix_str("")
 
@@ -402,11 +405,11 @@ def _finish_episodes(loop: LoopState, info: StepInfo, seeds: list[int],
 def _progress(bar: tqdm, loop: LoopState, episodes: int, window: collections.deque) -> None:
     done = min(loop.slowest(), episodes)
     if done > bar.n:
-        bar.update(done - bar.n)
-        if window:
+        if window:  # the postfix first: a plain line (off a terminal) is written by the update
             success = np.mean([w[0] for w in window])
             habit, plan = sum(w[1] for w in window), sum(w[2] for w in window)
-            bar.set_postfix(success=f"{success:.2f}", habit=f"{habit / max(1, habit + plan):.2f}")
+            bar.set_postfix(success=f"{success:.2f}", habit=f"{habit / max(1, habit + plan):.2f}", refresh=False)
+        bar.update(done - bar.n)
 
 
 def _to_device(obj: Any, device: torch.device) -> Any:

@@ -171,6 +171,16 @@ PLANT_SOURCES = {
     "velocity_scale": "design: ~95th percentile of joint speeds under random actions; networks read v / scale",
     "field_b": "F = B v, B = [[0, b], [-b, 0]], Shadmehr & Mussa-Ivaldi 1994",
 }
+#: The largest ``plant.max_torque`` (N·m): it becomes the agent's action bound, ``agent.action_scale``, whose range
+#: ends here (apac_mj/config.py).
+MAX_TORQUE = 360.0
+#: ``plant.velocity_scale``'s range (deg/s): the networks read velocity / scale (1e-300 overflowed them to NaN).
+VELOCITY_SCALE_RANGE = (1e-2, 1e6)
+#: Physics sub-steps per environment step at most (``control_interval / timestep``; the design runs 50).
+MAX_SUB_STEPS = 10_000
+#: Seconds one environment step of :data:`MAX_SUB_STEPS` sub-steps took (changing_target_torque, timestep 1e-5, on
+#: the shared 2-core machine; 50 sub-steps: 0.00015 s): 1.6 s per 30-step episode and seed.
+SUB_STEPS_SECONDS = 0.054
 _PLANT_PAIRS = {"stiffness", "damping", "link_masses", "link_inertias", "joint_damping"}
 _PLANT_INTS = {"load_change_episode", "field_on_episode", "field_off_episode"}
 _PLANT_BOOLS = {"gravity", "observe_velocities"}
@@ -237,6 +247,7 @@ def check_plant(plant: PlantSpec) -> None:
         v = getattr(plant, name)
         if not math.isfinite(v) or v <= 0:
             raise TaskSpecError(f"plant.{name} must be a positive finite number, got {v!r}")
+    _check_plant_bounds(plant)
     if plant.timestep > plant.control_interval or \
             abs(plant.sub_steps * plant.timestep - plant.control_interval) > 1e-9 * plant.control_interval:
         raise TaskSpecError(f"plant.control_interval ({plant.control_interval} s) must be a whole number of "
@@ -254,6 +265,31 @@ def check_plant(plant: PlantSpec) -> None:
     if plant.field_off_episode >= 0 and plant.field_off_episode <= plant.field_on_episode:
         raise TaskSpecError(f"plant.field_off_episode ({plant.field_off_episode}) must come after "
                             f"plant.field_on_episode ({plant.field_on_episode})")
+
+
+def _check_plant_bounds(plant: PlantSpec) -> None:
+    """The plant's sizes that other parts must carry: the torque bound is the agent's action bound
+    (``agent.action_scale``, at most :data:`MAX_TORQUE`), the networks read ``velocity / velocity_scale``
+    (:data:`VELOCITY_SCALE_RANGE`), and each step runs ``control_interval / timestep`` sub-steps
+    (at most :data:`MAX_SUB_STEPS`). Each error names the ``[plant]`` key, its limit and its default."""
+    default = PlantSpec()
+    if plant.max_torque > MAX_TORQUE:
+        raise TaskSpecError(f"plant.max_torque must be at most {MAX_TORQUE:g} N·m (it becomes the agent's action "
+                            f"bound, agent.action_scale, which is at most {MAX_TORQUE:g}; the design value is "
+                            f"{default.max_torque:g}), got {plant.max_torque!r}")
+    low, high = VELOCITY_SCALE_RANGE
+    if not low <= plant.velocity_scale <= high:
+        raise TaskSpecError(f"plant.velocity_scale must be in [{low:g}, {high:g}] deg/s (the networks read the "
+                            "joint velocities divided by it, which must stay finite and of order 1; the design value "
+                            f"is {default.velocity_scale:g}), got {plant.velocity_scale!r}")
+    sub_steps = plant.control_interval / plant.timestep
+    if sub_steps > MAX_SUB_STEPS + 0.5:
+        raise TaskSpecError(f"plant.timestep = {plant.timestep:g} s gives {sub_steps:.0f} physics sub-steps per "
+                            f"step (plant.control_interval {plant.control_interval:g} s / timestep); at most "
+                            f"{MAX_SUB_STEPS} ({MAX_SUB_STEPS} took {SUB_STEPS_SECONDS:g} s per step when measured, "
+                            f"{SUB_STEPS_SECONDS * 30:.1f} s per 30-step episode and seed), so timestep must be >= "
+                            f"{plant.control_interval / MAX_SUB_STEPS:g} s (the design: {default.timestep:g} s, "
+                            f"{default.sub_steps} sub-steps)")
 
 
 def describe_plant(plant: PlantSpec) -> str:

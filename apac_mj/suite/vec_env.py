@@ -187,6 +187,11 @@ class VecEnv:
     def distances(self) -> np.ndarray:
         return np.array([e.physics.distance_to_target() for e in self.envs])
 
+    def stopped(self, stop_speed: float) -> np.ndarray:
+        """``[E]`` every joint of each member at most ``stop_speed`` deg/s, as observed (the stop criterion's
+        speed part: ``planar_arm.stopped``)."""
+        return np.array([planar_arm.stopped(e.physics, stop_speed) for e in self.envs], dtype=bool)
+
     def joint_angles(self) -> np.ndarray:
         return np.stack([e.physics.joint_angles() for e in self.envs])
 

@@ -68,3 +68,66 @@ def out_of_memory(e: BaseException, what: str) -> str:
 
 def _gib(n: int) -> str:
     return f"{n / GIB:.2f} GiB"
+
+
+# -- the planner's size: refused when made (apac_mj.config.TrainConfig), before anything runs -----------------------
+
+#: Imagined steps per member and decision at most: (candidates + habit_candidates) x horizon x iterations of
+#: ``agent.mpc`` (the default: (32 + 2) x 4 x 4 = 544). 100 000 cost 0.65 s of the dynamics model alone per
+#: decision and member (200-200 model, one thread, the shared 2-core machine, measured): 20 s per 30-step episode.
+MAX_IMAGINED_STEPS = 100_000
+#: What the model alone took per decision at :data:`MAX_IMAGINED_STEPS` (s, measured as above).
+IMAGINED_STEPS_SECONDS = 0.65
+#: Floats per imagined sequence and step the planner holds at once, beside the networks' activations: the
+#: sequence, its noise and the sample (3 x 2 actions), the hand (2) and the state (16 at most).
+_FLOATS_PER_SEQUENCE_STEP = 3 * 2 + 2 + 16
+#: The share of this machine's memory one run's planner may take.
+PLANNER_MEMORY_SHARE = 0.5
+
+
+def imagined_steps(mpc: object) -> int:
+    """Imagined steps per member and decision of an ``agent.mpc`` table (:class:`apac_mj.rules.MPCParams`)."""
+    return (mpc.candidates + mpc.habit_candidates) * mpc.horizon * mpc.iterations
+
+
+def planner_bytes(agent: object, members: int) -> int:
+    """Bytes the MPC planner of ``agent`` (an AgentConfig) holds at once for ``members`` seeds: every sampled
+    sequence's steps, and the widest networks' activations for every sequence (the model's at each imagined
+    step, the actor's and critic's at the horizon)."""
+    mpc = agent.params["mpc"]
+    sequences = members * (mpc.candidates + mpc.habit_candidates)
+    widths = sum(mpc.model_hidden) * mpc.model_heads + sum(agent.actor_hidden) + sum(agent.critic_hidden)
+    return 4 * sequences * (mpc.horizon * _FLOATS_PER_SEQUENCE_STEP + widths)
+
+
+def physical_memory() -> int | None:
+    """This machine's memory (bytes); None where the system does not say."""
+    import os
+
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def check_planner(agent: object, members: int) -> None:
+    """Refuse an ``agent.mpc`` table whose planning would take unreasonably long per decision
+    (:data:`MAX_IMAGINED_STEPS`) or more than :data:`PLANNER_MEMORY_SHARE` of this machine's memory: a
+    ValueError naming the settings, the limit and the way out (campaign 3's ``candidates=1e9`` reached 15.7 GB
+    in 14 s; ``horizon=1e5`` finished no episode in 240 s)."""
+    mpc = agent.params.get("mpc") if isinstance(agent.params, dict) else None
+    if mpc is None:
+        return
+    steps = imagined_steps(mpc)
+    if steps > MAX_IMAGINED_STEPS:
+        raise ValueError(f"agent.mpc: (candidates {mpc.candidates} + habit_candidates {mpc.habit_candidates}) x "
+                         f"horizon {mpc.horizon} x iterations {mpc.iterations} = {steps:,} imagined steps per "
+                         f"decision; at most {MAX_IMAGINED_STEPS:,} (that many took {IMAGINED_STEPS_SECONDS} s of the "
+                         "dynamics model alone per decision and seed, measured; the default is 544): lower them")
+    need, have = planner_bytes(agent, members), physical_memory()
+    if have is not None and need > PLANNER_MEMORY_SHARE * have:
+        raise ValueError(f"agent.mpc: the planner would hold about {_gib(need)} at once ({members} seed(s) x "
+                         f"(candidates {mpc.candidates} + habit_candidates {mpc.habit_candidates}) sequences of "
+                         f"horizon {mpc.horizon}, model_hidden {list(mpc.model_hidden)}), more than "
+                         f"{PLANNER_MEMORY_SHARE:.0%} of this machine's {_gib(have)}: lower candidates or "
+                         "horizon, or run fewer seeds")
