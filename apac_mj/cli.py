@@ -27,6 +27,7 @@ COMMAND_MODULES = [
     "apac_mj.commands.screenshot",
     "apac_mj.commands.forced_response",
     "apac_mj.commands.zoo",
+    "apac_mj.commands.adaptation",
 ]
 
 

@@ -327,7 +327,9 @@ ADDED = {"bf16_networks": list(TRAINED_NETWORKS),
 #: behaves as that release did. Issue 28's ``mpc`` table had no ``model_weight_decay`` (its dynamics model was
 #: decayed by the paper's ``weight_decay``, as every network) and no ``model_heads`` (one model).
 TABLE_ADDED: dict[str, dict[str, Callable[[dict[str, Any]], Any]]] = {
-    "mpc": {"model_weight_decay": lambda agent: agent.get("weight_decay", 1e-3), "model_heads": lambda agent: 1}}
+    "mpc": {"model_weight_decay": lambda agent: agent.get("weight_decay", 1e-3), "model_heads": lambda agent: 1},
+    # issue 42: the graded rule measured a plan's gain through the model that selected it, on the steps it planned
+    "voc": {"gain": lambda agent: "imagined", "learn_on": lambda agent: "planned", "explore": lambda agent: 0.0}}
 
 
 def migrate(d: dict[str, Any]) -> dict[str, Any]:

@@ -208,6 +208,10 @@ class MPCParams:
     #: Dynamics models per member, trained side by side from their own initializations, planned through by
     #: their mean (a model ensemble; 1: one model).
     model_heads: int = 1
+    #: How many of the ``model_heads`` (the last ones) are trained as the others but not planned through: a model
+    #: the plans were not selected by, which the graded rule values them by (``voc.gain = "heldout"``; 0: the
+    #: graded rule adds one head of its own, see ``voc.gain``).
+    held_out_heads: int = 0
 
     def __post_init__(self) -> None:
         if isinstance(self.model_hidden, (list, tuple)):
@@ -221,6 +225,9 @@ class MPCParams:
                  "model_updates must be an integer >= 0", self.model_updates)
         _require(self.table, _is_int(self.model_heads) and 1 <= self.model_heads <= 32,
                  "model_heads must be an integer in [1, 32]", self.model_heads)
+        _require(self.table, _is_int(self.held_out_heads) and 0 <= self.held_out_heads < self.model_heads,
+                 f"held_out_heads must be an integer in [0, model_heads - 1 = {self.model_heads - 1}]",
+                 self.held_out_heads)
         _require(self.table, _finite(self.model_weight_decay) and 0 <= self.model_weight_decay <= 1,
                  "model_weight_decay must be in [0, 1]", self.model_weight_decay)
         for name in ("horizon", "candidates", "iterations"):
@@ -236,6 +243,10 @@ class MPCParams:
                      f"{name} must be a finite number >= 0", v)
         _require(self.table, self.temperature > 0, "temperature must be > 0", self.temperature)
         _require(self.table, 0 < self.min_std <= self.max_std, "min_std must be in (0, max_std]", self.min_std)
+
+
+#: The graded rule's estimates of a plan's gain (``voc.gain``).
+GAIN_ESTIMATES = ("heldout", "imagined", "advantage")
 
 
 @register
@@ -258,9 +269,36 @@ class ValueOfComputationParams:
     #: and movement time. Time costs what a step costs: the current distance to the target (cm of return per
     #: step). 14: the full budget (4 iterations x 7) costs the paper's 2 extra steps (planning 3, habit 1).
     decisions_per_step: float = 14.0
+    #: What a plan's gain over the habit is measured as (cm of return), after each iteration ``k``:
+    #: "imagined": the plan's imagined value minus the habit's, through the model that selected it (>= 0: the
+    #: habit is among the candidates; a maximum over them, biased upwards where the model errs);
+    #: "heldout" (the default: the least biased, docs/results/planning/voc_gain.md): the iteration's best sequence
+    #: and the habit's valued as the planner values them but through a held-out dynamics head, trained beside the
+    #: planned ones on the same transitions but never planned through (the agent gets one head more, unless
+    #: ``mpc.held_out_heads`` holds some out): a model the plan was not selected by (it can be negative);
+    #: "advantage": the critic's advantage of the plan's first action, ``Q(s, a_k) - Q(s, pi(s))``.
+    #: bench/voc_gain_bias.py measures each against MuJoCo's physics.
+    gain: str = "heldout"
+    #: Which steps teach the gain table: "unselected": only steps that planned the full budget for a reason
+    #: independent of the rule (the planning phase; in training a re-exploration, ``explore``), each teaching
+    #: every ``k``, so every entry averages the same steps; "planned" (before issue 42): every step the rule
+    #: planned, for ``k`` up to the budget it granted (each ``k`` then averages its own, rule-selected, steps).
+    learn_on: str = "unselected"
+    #: Probability that a training step after the planning phase plans at the full budget whatever the rule
+    #: decides (a draw of (episode, step), the same in an ensemble and alone; never in a frozen test): the
+    #: re-exploration that keeps every entry measured (0: none, the releases before issue 42).
+    explore: float = 0.1
 
     def __post_init__(self) -> None:
         _require(self.table, _is_int(self.window) and self.window >= 1, "window must be an integer >= 1", self.window)
+        _require(self.table, self.gain in GAIN_ESTIMATES, f"gain must be one of {GAIN_ESTIMATES}", self.gain)
+        _require(self.table, self.learn_on in ("unselected", "planned"), "learn_on must be 'unselected' or 'planned'",
+                 self.learn_on)
+        _require(self.table, _finite(self.explore) and 0 <= self.explore <= 1, "explore must be in [0, 1]",
+                 self.explore)
+        _require(self.table, self.learn_on == "planned" or self.explore > 0,
+                 "learn_on = 'unselected' needs explore > 0 (else nothing teaches the table after the planning "
+                 "phase)", self.explore)
         _require(self.table, self.cost in ("fixed", "measured"), "cost must be 'fixed' or 'measured'", self.cost)
         _require(self.table, _finite(self.iteration_cost) and self.iteration_cost >= 0,
                  "iteration_cost must be a finite number >= 0", self.iteration_cost)

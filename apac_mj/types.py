@@ -251,6 +251,9 @@ class Proposal:
     best_values: torch.Tensor | None = None
     #: ``[E]`` the habit's imagined value (:class:`HabitProbe`); None: not a model planner.
     habit_value: torch.Tensor | None = None
+    #: ``[E, iterations_max, H, A]`` the best sequence (tanh units) after each iteration (zeros past a member's
+    #: budget): what an estimate of a plan's gain independent of its selection values. None: not recorded.
+    best_sequences: torch.Tensor | None = None
 
 
 @dataclasses.dataclass(frozen=True)

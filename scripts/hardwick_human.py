@@ -40,7 +40,11 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import scipy.io as sio
+
+from apac_mj.report import hardwick
+from apac_mj.util.progress import progress_iter
 
 CONDITIONS = ("minimal", "4day", "20day")
 STIMULI = ("remapped", "unchanged")
@@ -73,13 +77,34 @@ def load_subjects(mat: Path, drop_shared: bool = False) -> dict[str, list[dict[s
 
 
 def window_probs(rt: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """(3, n_centres) sliding-window P(code 1), P(code 2), P(code 3); NaN if <= 3 trials."""
-    c = CENTRES_MS[:, None] / 1000.0
-    inwin = (rt[None, :] > c - WIDTH_S / 2) & (rt[None, :] <= c + WIDTH_S / 2)
-    n = inwin.sum(axis=1)
-    p = np.stack([(inwin & (y[None, :] == k)).sum(axis=1) / np.maximum(n, 1) for k in (1, 2, 3)])
-    p[:, n <= 3] = np.nan
-    return p
+    """(3, n_centres) sliding-window P(code 1), P(code 2), P(code 3); NaN if <= 3 trials
+    (:func:`apac_mj.report.hardwick.sliding_window`, the same window the agents' trials are analysed with)."""
+    onehot = (np.asarray(y)[:, None] == np.arange(1, 4)[None, :]).astype(float)
+    return hardwick.sliding_window(rt, onehot, CENTRES_MS / 1000.0, WIDTH_S)
+
+
+def fit_subjects(data: dict[str, list[dict[str, np.ndarray]]]) -> pd.DataFrame:
+    """Hardwick et al.'s habit and no-habit models fitted to each subject's remapped-symbol trials, as
+    ``Publication/fit_model_to_all_data.m`` does (``data(subject, c).RT`` / ``.response``; RT = NaN dropped):
+    one :func:`apac_mj.report.hardwick.fit_row` per subject and condition (times in ms)."""
+    todo = [(cond, i, s) for cond in CONDITIONS for i, s in enumerate(data[cond])]
+    rows = []
+    for cond, i, s in progress_iter(todo, len(todo), "Hardwick fits", "subject"):
+        row = hardwick.fit_row(s["rt_remapped"], hardwick.trial_counts(s["y_remapped"]))
+        rows.append({"condition": cond, "subject": i, **row})
+    return pd.DataFrame(rows)
+
+
+def write_fits(data: dict[str, list[dict[str, np.ndarray]]], out: Path, subjects_out: Path | None) -> None:
+    """The fits' summary per condition (``hardwick_fits.csv`` in ``out``: mean and interval over subjects, how
+    many favour the habit model); the per-subject fits only to ``subjects_out`` (the data carry no licence)."""
+    fits = fit_subjects(data)
+    if subjects_out is not None:
+        subjects_out.parent.mkdir(parents=True, exist_ok=True)
+        fits.round(6).to_csv(subjects_out, index=False)
+    summ = hardwick.summarize(fits, ["condition"])
+    summ["condition"] = pd.Categorical(summ["condition"], CONDITIONS, ordered=True)
+    summ.sort_values("condition").round(4).to_csv(out / "hardwick_fits.csv", index=False)
 
 
 def subject_curves(subs: list[dict[str, np.ndarray]], stim: str) -> np.ndarray:
@@ -119,20 +144,34 @@ def fmt(x: float) -> str:
     return "" if np.isnan(x) else f"{x:.3f}"
 
 
-def main() -> None:
-    """Compute curves and summary, write CSVs and figure."""
+def parse_args() -> argparse.Namespace:
+    """The command line, checked (a missing file or --subject-fits without --fits is refused)."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--mat", type=Path, required=True,
                     help="HabitData.mat from github.com/adrianhaith/HabitTR (branch publication, Publication/)")
     ap.add_argument("--out", type=Path, required=True,
                     help="folder for human_curves.csv, human_summary.csv and human_curves.png")
     ap.add_argument("--drop-shared", action="store_true", help="drop trials whose RT occurs in both lists")
+    ap.add_argument("--fits", action="store_true",
+                    help="also fit Hardwick et al.'s habit and no-habit models per subject (hardwick_fits.csv)")
+    ap.add_argument("--subject-fits", type=Path, default=None,
+                    help="with --fits: write the per-subject fits here (keep it out of git: the data have no licence)")
     args = ap.parse_args()
     if not args.mat.is_file():
         ap.error(f"--mat {args.mat}: no such file (download HabitData.mat from the HabitTR repository)")
+    if args.subject_fits is not None and not args.fits:
+        ap.error("--subject-fits needs --fits")
+    return args
+
+
+def main() -> None:
+    """Compute curves and summary (and with --fits the model's fits), write CSVs and figure."""
+    args = parse_args()
     warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN windows/slices are expected
     args.out.mkdir(parents=True, exist_ok=True)
     data = load_subjects(args.mat, args.drop_shared)
+    if args.fits:
+        write_fits(data, args.out, args.subject_fits)
     rng = np.random.default_rng(SEED)
     res: dict[tuple[str, str], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
     rows, summ = [], []
@@ -165,9 +204,15 @@ def main() -> None:
                      fmt(np.nanmean(m_r[1, short & ok])), *map(fmt, ci(np.nanmean(b_r[:, 1, short], axis=1))),
                      fmt(first_crossing(m_r[0])), *map(fmt, ci(t50r)),
                      fmt(first_crossing(m_u[0])), *map(fmt, ci(t50u))])
+    write_tables(args.out, rows, summ)
+    plot(res, args.out / "human_curves.png")
+
+
+def write_tables(out: Path, rows: list[list], summ: list[list]) -> None:
+    """``human_curves.csv`` and ``human_summary.csv`` with their headers."""
     head = ["condition", "stimulus", "prep_ms", "n_subjects"] + [
         f"p_{q}{s}" for q in ("correct", "habitual", "other") for s in ("", "_lo", "_hi")]
-    with open(args.out / "human_curves.csv", "w", newline="") as f:
+    with open(out / "human_curves.csv", "w", newline="") as f:
         csv.writer(f).writerows([head, *rows])
     shead = ["condition", "n_subjects", "n_trials_remapped", "n_trials_unchanged", "n_trials_rt_shared",
              "habit_peak_ms", "habit_peak_ms_lo", "habit_peak_ms_hi",
@@ -176,9 +221,8 @@ def main() -> None:
              "habit_50_150", "habit_50_150_lo", "habit_50_150_hi",
              "t50_correct_remapped_ms", "t50_correct_remapped_ms_lo", "t50_correct_remapped_ms_hi",
              "t50_correct_unchanged_ms", "t50_correct_unchanged_ms_lo", "t50_correct_unchanged_ms_hi"]
-    with open(args.out / "human_summary.csv", "w", newline="") as f:
+    with open(out / "human_summary.csv", "w", newline="") as f:
         csv.writer(f).writerows([shead, *summ])
-    plot(res, args.out / "human_curves.png")
 
 
 def plot(res: dict[tuple[str, str], tuple[np.ndarray, np.ndarray, np.ndarray]], path: Path) -> None:

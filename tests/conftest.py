@@ -96,3 +96,13 @@ def fill_and_update(agent, seed: int = 2, transitions: int = 6):
                          executed_action=a)
     agent.update(torch.tensor([True, False]))
     return agent
+
+
+def through_a_checkpoint(state: dict) -> dict:
+    """``state`` saved as a checkpoint saves it and loaded back (``weights_only``: tensors and plain data only)."""
+    import io
+
+    buf = io.BytesIO()
+    torch.save(state, buf)
+    buf.seek(0)
+    return torch.load(buf, weights_only=True)

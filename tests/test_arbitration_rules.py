@@ -83,8 +83,10 @@ from apac_mj.types import HabitProbe  # noqa: E402
 
 
 def _voc(**voc) -> ValueOfComputationArbitrator:
-    """A graded rule with 4 iterations, window 2 (rate 1/2), one iteration priced at 10/100 of a step."""
-    table = {"iteration_cost": 10.0, "decisions_per_step": 100.0, "window": 2, **voc}
+    """A graded rule with 4 iterations, window 2 (rate 1/2), one iteration priced at 10/100 of a step, learning on
+    every planned step (``learn_on = "planned"``; the re-explored learning: tests/test_voc_gain.py)."""
+    table = {"iteration_cost": 10.0, "decisions_per_step": 100.0, "window": 2, "learn_on": "planned",
+             "explore": 0.0, **voc}
     return ValueOfComputationArbitrator(AgentConfig(kind="apac_voc", planning_episodes=3,
                                                     params={"voc": table, "mpc": {"iterations": 4}}))
 
@@ -234,7 +236,8 @@ def test_in_the_dark_the_checked_habit_acts_where_its_predicted_end_is_close_eno
 
 
 def test_the_vision_aware_rule_passes_learning_and_state_to_its_base():
-    cfg = AgentConfig(kind="apac_vision", params={"voc": {"window": 2}, "mpc": {"iterations": 4}})
+    cfg = AgentConfig(kind="apac_vision", params={"voc": {"window": 2, "learn_on": "planned", "explore": 0.0},
+                                                  "mpc": {"iterations": 4}})
     base = ValueOfComputationArbitrator(cfg)
     rule = VisionAwareArbitrator(cfg, base)
     assert rule.needs_habit_probe

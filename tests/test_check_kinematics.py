@@ -54,5 +54,5 @@ def test_tasks_regions(capsys):
     lines = capsys.readouterr().out.strip().splitlines()
     from apac_mj.suite.task_spec import task_names
 
-    assert [line.split()[0] for line in lines] == task_names() and len(lines) == 20
+    assert [line.split()[0] for line in lines] == task_names() and len(lines) == 24
     assert all("31/100 grid targets" in line for line in lines)

@@ -131,7 +131,7 @@ def test_the_imagined_state_keeps_the_cue():
 
 
 # -- timing -------------------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("field, value", [("habit_latency_ms", -1.0), ("planning_latency_ms", float("nan")),
+@pytest.mark.parametrize("field, value", [("habit_latency_ms", -1.0), ("perception_ms", float("nan")),
                                           ("latency_sd_ms", float("inf")), ("mpc_iteration_ms", 0.0),
                                           ("step_ms", 0.0), ("habit_latency_ms", True)])
 def test_invalid_timing_is_refused(field, value):
@@ -150,10 +150,12 @@ def test_invalid_settings_are_refused_before_anything_is_written(tmp_path, capsy
     from apac_mj.cli import main
 
     out = tmp_path / "study"
-    for bad in ("timing.habit_latency_ms=-5", "timing.model_pass_ms=nan", "prep_times_ms=10,500", "trials=0"):
+    for bad in ("timing.habit_latency_ms=-5", "timing.model_pass_ms=nan", "prep_times_ms=10,500", "trials=0",
+                "default=wait"):
         assert main(["forced-response", "run", "--out", str(out), "--set", bad]) != 0
         assert not out.exists()
-    assert "habit_latency_ms" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "habit_latency_ms" in err and "default must be one of ('guess', 'still'), got 'wait'" in err
 
 
 def test_classify_names_correct_habitual_other_and_timeout():
@@ -165,18 +167,32 @@ def test_classify_names_correct_habitual_other_and_timeout():
     assert fr.classify(np.array([now[0], now[3]]), start, now, before, 0, 3.0).tolist() == [0, 2]
 
 
-def _candidates(habit_outcome, plan_outcomes, rule_habit, rule_ms=0.0, rule_iterations=None):
+def test_a_guess_of_each_target_is_correct_habitual_or_other_by_the_cues_mapping():
+    cues = Cues(targets=((24, 22), (17.5, 27), (8, 24), (5.5, 15.5)), swap=((1, 2),))
+    g = fr.guesses(cues.mapping(True), cues.mapping(False))
+    # guess j aims at targets_now[j]: cue c's own is correct; cue 1's old target is now cue 2's (habitual), and
+    # cue 2's cue 1's; unchanged cues have no habitual guess
+    assert g.tolist() == [[0, 2, 2, 2], [2, 0, 1, 2], [2, 1, 0, 2], [2, 2, 2, 0]]
+
+
+def _candidates(habit_outcome, plan_outcomes, rule_habit, rule_iterations=None, guess=(0, 1, 2, 2)):
     E, n, R = 1, 1, 1
     K = len(plan_outcomes)
     return fr.Candidates(np.full((E, n, R), habit_outcome), np.array(plan_outcomes).reshape(E, n, R, K),
                          np.full((E, n, R), 3), np.full((E, n, R), rule_habit),
-                         np.full((E, n, R), rule_iterations or K), rule_ms, {})
+                         np.full((E, n, R), rule_iterations or K), {}, np.array([guess]))
 
 
-def _rates(c, times, uses_habit=True, uses_planner=True, iteration=100.0):
-    timing = fr.Timing(habit_latency_ms=300, planning_latency_ms=300, latency_sd_ms=0.0)
-    counts = fr.simulate(c, timing, times, 10, 0, uses_habit, uses_planner, iteration)
-    return counts["outcomes"][0, 0] / 10, counts["acted"][0, 0] / 10
+def _sched(K, rule_ms=0.0, iteration=100.0, setup=0.0, after_habit=False, uses_habit=True, uses_planner=True):
+    """Habit ready at 300 ms, a planner that does not wait for it starting at 300 ms."""
+    return fr.Schedule(300.0, 300.0, rule_ms, setup + iteration * np.arange(1, K + 1), after_habit, uses_habit,
+                       uses_planner)
+
+
+def _rates(c, times, sched=None, default="still", trials=10):
+    sched = _sched(c.plan.shape[-1]) if sched is None else sched
+    counts = fr.simulate(c, sched, 0.0, times, trials, 0, default)
+    return counts["outcomes"][0, 0] / trials, counts["acted"][0, 0] / trials
 
 
 def test_the_habit_acts_once_ready_and_the_plan_replaces_it_once_a_plan_is_ready():
@@ -189,18 +205,30 @@ def test_the_habit_acts_once_ready_and_the_plan_replaces_it_once_a_plan_is_ready
     assert acted[:, fr.ACTORS.index("planner")].tolist() == [0, 0, 1, 1]
 
 
+def test_a_plan_that_needs_the_habits_rollout_is_never_ready_before_the_habit():
+    """The MPC plan's pool holds the habit's sequence: its iterations count from the habit's readiness."""
+    c = _candidates(1, [0], rule_habit=False)
+    sched = _sched(1, iteration=30.0, after_habit=True)
+    H, S = np.array([500.0, 200.0]), np.array([200.0, 500.0])
+    plan, habit, _ = fr.choose(480.0, H, S, np.array([False, False]), np.array([1, 1]), sched)
+    assert plan.tolist() == [False, True] and habit.tolist() == [False, False]  # 1st: habit not ready at 480
+    free = _sched(1, iteration=30.0)
+    assert fr.choose(480.0, H, S, np.array([False, False]), np.array([1, 1]), free)[0].tolist() == [True, False]
+    assert _rates(c, [320, 340], sched)[0][:, fr.OUTCOMES.index("correct")].tolist() == [0, 1]
+
+
 def test_a_rule_that_keeps_the_habit_keeps_it_and_a_rule_not_ready_defers_to_the_habit():
     keep = _candidates(1, [0], rule_habit=True)
     assert _rates(keep, [350, 900])[0][:, fr.OUTCOMES.index("habitual")].tolist() == [1, 1]
-    slow = _candidates(1, [0], rule_habit=False, rule_ms=300.0)  # the rule's inputs are ready at 600 ms
-    assert _rates(slow, [450, 650])[0][:, fr.OUTCOMES.index("correct")].tolist() == [0, 1]
+    slow = _candidates(1, [0], rule_habit=False)  # the rule's inputs are ready at 600 ms
+    assert _rates(slow, [450, 650], _sched(1, rule_ms=300.0))[0][:, fr.OUTCOMES.index("correct")].tolist() == [0, 1]
 
 
 def test_habit_only_and_planning_only_kinds():
     c = _candidates(1, [0], rule_habit=True)
-    ddpg = _rates(c, [200, 500, 1000], uses_planner=False)[0]
+    ddpg = _rates(c, [200, 500, 1000], _sched(1, uses_planner=False))[0]
     assert ddpg[:, fr.OUTCOMES.index("habitual")].tolist() == [0, 1, 1]
-    spac = _rates(c, [200, 350, 1000], uses_habit=False)[0]
+    spac = _rates(c, [200, 350, 1000], _sched(1, uses_habit=False))[0]
     assert spac[:, fr.OUTCOMES.index("timeout")].tolist() == [1, 1, 0]
     assert spac[:, fr.OUTCOMES.index("habitual")].tolist() == [0, 0, 0]
 
@@ -213,9 +241,68 @@ def test_the_graded_rule_gets_no_more_iterations_than_it_granted():
 
 def test_latency_spread_smooths_the_curve():
     c = _candidates(1, [0], rule_habit=False)
-    timing = fr.Timing(habit_latency_ms=300, planning_latency_ms=300, latency_sd_ms=50.0)
-    counts = fr.simulate(c, timing, [300], 2000, 0, True, True, 100.0)["outcomes"][0, 0, 0] / 2000
+    counts = fr.simulate(c, _sched(1), 50.0, [300], 2000, 0, "still")["outcomes"][0, 0, 0] / 2000
     assert 0.4 < counts[fr.OUTCOMES.index("timeout")] < 0.6  # the habit ready in half the trials at its mean
+
+
+def test_with_nothing_ready_the_agent_guesses_a_uniformly_drawn_cued_target():
+    """Guesses of 4 targets, one correct, one habitual, two other: 1/4, 1/4, 1/2, and the table says so."""
+    c = _candidates(1, [0], rule_habit=False, guess=(0, 1, 2, 2))
+    n = 8000
+    counts = fr.simulate(c, _sched(1), 0.0, [100, 1000], n, 0, "guess")
+    early = counts["outcomes"][0, 0, 0] / n
+    np.testing.assert_allclose(early, [0.25, 0.25, 0.5, 0.0], atol=4 * np.sqrt(0.25 / n))
+    assert counts["acted"][0, 0, 0, fr.ACTORS.index("default")] == counts["guessed"][0, 0, 0] == n
+    assert counts["guessed"][0, 0, 1] == 0 and counts["outcomes"][0, 0, 1, 0] == n  # the plan, at 1000 ms
+    per_target = np.bincount(np.random.default_rng(0).integers(0, 4, n), minlength=4)  # the same stream's draws
+    assert per_target.min() > 0.9 * n / 4
+    still = fr.simulate(c, _sched(1), 0.0, [100], n, 0, "still")
+    assert still["outcomes"][0, 0, 0, fr.OUTCOMES.index("timeout")] == n and still["guessed"].sum() == 0
+
+
+def test_the_guesses_are_the_tests_random_stream_same_seed_same_guesses():
+    c = _candidates(1, [0], rule_habit=False, guess=(0, 1, 2, 3))
+    a, b = (fr.simulate(c, _sched(1), 0.0, [100], 50, 7, "guess")["outcomes"] for _ in range(2))
+    other = fr.simulate(c, _sched(1), 0.0, [100], 50, 8, "guess")["outcomes"]
+    assert (a == b).all() and not (a == other).all()
+
+
+def test_the_schedule_follows_the_counts_at_the_timings_prices():
+    """APAC-VOC at the defaults: habit at perception + an actor pass, the rule after the probe's rest, the plan
+    after the habit's rollout; SPAC's inverse model one pass after perception, not waiting for a habit."""
+    from apac_mj.run import timing as tm
+
+    t = fr.Timing()
+    voc = fr.schedule("apac_voc", AgentConfig(kind="apac_voc"), t, 4)
+    assert voc.habit_ms == t.perception_ms + t.actor_pass_ms and voc.start_ms == t.perception_ms
+    assert voc.rule_ms == pytest.approx(4 * t.actor_pass_ms + 4 * t.model_pass_ms + t.critic_pass_ms)
+    assert voc.after_habit and voc.uses_habit and voc.uses_planner
+    assert voc.plan_ms.tolist() == pytest.approx(
+        [tm.decision_ms(tm.mpc_counts(AgentConfig().params["mpc"], k) - tm.HABIT, t) for k in (1, 2, 3, 4)])
+    assert voc.plan_ms[0] > voc.rule_ms  # the plan's pool needs the probe's rollout: never before the rule
+    told = fr.schedule("apac_voc", AgentConfig(kind="apac_voc"), t, 4, cues=4)
+    extra = tm.decision_ms(tm.told_counts(4, 4), t)
+    assert told.rule_ms == pytest.approx(voc.rule_ms + extra) and told.plan_ms == pytest.approx(voc.plan_ms + extra)
+    spac = fr.schedule("spac", AgentConfig(kind="spac"), t, 1, cues=4)
+    assert not spac.after_habit and spac.plan_ms.tolist() == [t.inverse_pass_ms] and not spac.uses_habit
+    assert spac.rule_ms == 0.0
+    ddpg = fr.schedule("ddpg", AgentConfig(kind="ddpg"), t, 1)
+    assert not ddpg.uses_planner and ddpg.uses_habit
+
+
+def test_what_the_agent_learned_moves_the_curve_at_fixed_timing():
+    """Issue 42 item 4: one Timing, one schedule (APAC-VOC's), three agents that learned differently: a model
+    that plans the told target in one iteration, one that needs three, and a rule that keeps a wrong habit."""
+    sched = fr.schedule("apac_voc", AgentConfig(kind="apac_voc"), fr.Timing(), 4)
+    H = sched.habit_ms
+    times = [H + (sched.plan_ms[0] + sched.plan_ms[1]) / 2, H + sched.plan_ms[2] + 1.0]
+    quick = _candidates(1, [0, 0, 0, 0], rule_habit=False)
+    slow = _candidates(1, [2, 2, 0, 0], rule_habit=False)
+    keeps = _candidates(1, [0, 0, 0, 0], rule_habit=True)
+    correct, habitual = fr.OUTCOMES.index("correct"), fr.OUTCOMES.index("habitual")
+    assert _rates(quick, times, sched)[0][:, correct].tolist() == [1, 1]
+    assert _rates(slow, times, sched)[0][:, correct].tolist() == [0, 1]  # its P(correct) rises 2 iterations later
+    assert _rates(keeps, times, sched)[0][:, habitual].tolist() == [1, 1]  # and never falls
 
 
 def test_imagined_delta_is_the_td_error_of_the_forward_models_transition():
@@ -266,7 +353,8 @@ def test_the_command_line_tests_reports_and_records_a_trained_run(trained_runs, 
         assert set(df.variant) == {kind} and sorted(df.prep_ms.unique()) == prep  # neither has a delta rule
         assert sorted(df.cue.unique()) == [0, 1, 2, 3] and sorted(df.seed.unique()) == [0, 1]
         assert (df[list(fr.OUTCOMES)].sum(axis=1) == 7).all()
-        assert (df[df.prep_ms == 100.0].timeout == 7).all()  # nothing is ready at 100 ms: no movement
+        early = df[df.prep_ms == 100.0]  # nothing is ready at 100 ms: a guess, and the table says so
+        assert (early.guessed == 7).all() and (early.default_acted == 7).all() and (early.timeout == 0).all()
         if kind == "ddpg":
             assert (df.remapped == df.cue.isin([1, 2])).all()
     report = root / "report"
@@ -278,7 +366,7 @@ def test_the_command_line_tests_reports_and_records_a_trained_run(trained_runs, 
     argv = ["forced-response", "record", str(runs["apac_voc"]), "--out", str(rrd), "--prep-times", "100,900"]
     assert cli.main(argv) == 0
     said = capsys.readouterr().out
-    assert "deadline 100 ms" in said and "no movement (a time-out)" in said and "deadline 900 ms" in said
+    assert "deadline 100 ms" in said and "nothing is ready: a guess, target " in said and "deadline 900 ms" in said
     assert rrd.stat().st_size > 1000
     size = rrd.stat().st_size
     assert cli.main(argv) != 0 and rrd.stat().st_size == size
@@ -372,7 +460,7 @@ def _tests_table(habitual_by_time: dict[float, list[int]], correct_by_time: dict
                 hh, cc = (h, c) if remapped else (0, trials)
                 rows.append(dict(practice=5, variant="apac_voc", seed=seed, cue=cue, remapped=remapped, prep_ms=t,
                                  trials=trials, correct=cc, habitual=hh, other=0, timeout=trials - hh - cc,
-                                 habit_acted=hh, planner_acted=cc, default_acted=trials - hh - cc))
+                                 habit_acted=hh, planner_acted=cc, default_acted=trials - hh - cc, guessed=0))
     return pd.DataFrame(rows)
 
 
@@ -413,12 +501,13 @@ def test_variants_follow_the_kinds_rule_not_its_name():
         kinds.unregister("delta_renamed")
     spac, ddpg, voc = (AgentConfig(kind=k) for k in ("spac", "ddpg", "apac_voc"))
     assert fr.variants(spac) == ("spac",) and fr.variants(voc) == ("apac_voc",)
-    t = Timing()
-    horizon = voc.params["mpc"].horizon
-    assert fr.rule_ms("apac_voc", voc, t) == t.model_pass_ms * horizon > 0
+    t = Timing(actor_pass_ms=1.0, critic_pass_ms=10.0, model_pass_ms=100.0, inverse_pass_ms=1000.0, row_ms=0.5)
+    assert voc.params["mpc"].horizon == 4
+    # the probe beyond the habit's own pass: 4 actor, 4 model passes and the terminal critic
+    assert fr.rule_ms("apac_voc", voc, t) == 4 * 1 + 4 * 100 + 10
     assert fr.rule_ms("spac", spac, t) == fr.rule_ms("ddpg", ddpg, t) == 0.0
     assert fr.rule_ms("apac", AgentConfig(kind="apac"), t) == 0.0
-    assert fr.rule_ms("apac_imagined", AgentConfig(kind="apac"), t) == t.model_pass_ms
+    assert fr.rule_ms("apac_imagined", AgentConfig(kind="apac"), t) == 1 + 2 * 10 + 100  # pi', Q', Q, the model
     seen = AgentConfig(kind="apac_vision")
     seen.params["vision_aware"] = dataclasses.replace(seen.params["vision_aware"], base="apac_voc")
     assert kinds.arbitrator_for(seen).needs_habit_probe

@@ -74,7 +74,7 @@ def _table(trials: int = 10) -> pd.DataFrame:
                 rows.append(dict(seed=seed, episode=5, variant="ddpg", prep_ms=t, cue=cue, remapped=remapped,
                                  trials=trials, correct=correct, habitual=habitual, other=0,
                                  timeout=trials - correct - habitual, habit_acted=correct + habitual,
-                                 planner_acted=0, default_acted=trials - correct - habitual))
+                                 planner_acted=0, default_acted=trials - correct - habitual, guessed=0))
     return pd.DataFrame(rows, columns=list(COLUMNS))
 
 
@@ -95,6 +95,13 @@ def test_a_sound_table_reports_and_report_out_goes_where_asked(tmp_path, capsys)
     assert curves.correct.between(0, 1).all() and (elsewhere / "forced_response.png").is_file()
     peaks = pd.read_csv(elsewhere / "peaks.csv")
     assert peaks.peak_ms.tolist() == [400.0] and peaks.peak.tolist() == [pytest.approx(0.3)]
+
+
+def test_a_table_written_before_the_guesses_still_reports(tmp_path):
+    """A table from before the ``guessed`` column (and ``episode``) reads as one with no guesses."""
+    study, _ = _study(tmp_path, _table().drop(columns=["guessed", "episode"]))
+    assert cli.main(["forced-response", "report", str(study)]) == 0
+    assert pd.read_csv(study / "report" / "peaks.csv").peak.tolist() == [pytest.approx(0.3)]
 
 
 def _nan_counts(df):
@@ -153,7 +160,8 @@ def test_a_rerun_with_other_settings_is_refused_naming_old_and_new(tmp_path):
     study.mkdir()
     (study / exp.PROTOCOL_FILE).write_text(json.dumps(_record(SMALL + ["practice=1,2", "agents=ddpg,apac"])))
     for change, says in ((["seeds=2"], "run.seeds: [0] in the study, [0, 1] now"),
-                         (["timing.habit_latency_ms=250"], "timing.habit_latency_ms: 300.0 in the study, 250.0 now"),
+                         (["timing.perception_ms=250"], "timing.perception_ms: 400.61 in the study, 250.0 now"),
+                         (["default=still"], "default: 'guess' in the study, 'still' now"),
                          (["trials=9"], "trials: 5 in the study, 9 now"),
                          (["agents=ddpg"], "agents: ['ddpg', 'apac'] in the study, ['ddpg'] now"),
                          (["practice=1"], "practice: [1, 2] in the study, [1] now")):

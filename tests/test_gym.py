@@ -12,7 +12,7 @@ from apac_mj import suite  # noqa: E402
 
 def test_every_task_is_registered():
     assert apac_gym.ENV_IDS == [f"apac_mj/{t}-v0" for _, t in suite.ALL_TASKS]
-    assert len(apac_gym.ENV_IDS) == 20 and all(i in gymnasium.registry for i in apac_gym.ENV_IDS)
+    assert len(apac_gym.ENV_IDS) == 24 and all(i in gymnasium.registry for i in apac_gym.ENV_IDS)
     assert apac_gym.register_all() == apac_gym.ENV_IDS  # idempotent
 
 

@@ -171,10 +171,11 @@ def test_the_real_agents_imagined_step_is_its_forward_model():
 
 # -- the graded arbitrator -------------------------------------------------------------------------------
 def _voc(iteration_cost: float = 10.0, decisions_per_step: float = 100.0, planning_episodes: int = 0):
-    """A graded rule whose iteration costs 0.1 movement steps (10 habit decisions of 100 per step)."""
+    """A graded rule whose iteration costs 0.1 movement steps (10 habit decisions of 100 per step), learning on every
+    planned step (``voc.learn_on = "planned"``; the re-explored learning: tests/test_voc_gain.py)."""
     cfg = AgentConfig(kind="apac_voc", planning_episodes=planning_episodes,
                       params={"voc": {"iteration_cost": iteration_cost, "decisions_per_step": decisions_per_step,
-                                      "window": 1}, "mpc": {"iterations": 4}})
+                                      "window": 1, "learn_on": "planned", "explore": 0.0}, "mpc": {"iterations": 4}})
     return ValueOfComputationArbitrator(cfg)
 
 

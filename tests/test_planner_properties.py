@@ -9,6 +9,7 @@ sequence in every refit. ``docs/mutation.md`` lists the mutants these tests kill
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import pytest
 import torch
@@ -317,3 +318,108 @@ def test_every_member_has_its_own_planning_stream_apart_from_its_seeds_plain_str
     for seed, x in enumerate(first):
         others = [*member_generators(seed), torch.Generator().manual_seed(seed)]
         assert not any(torch.equal(x, torch.randn(4, generator=g)) for g in others)
+
+
+# -- the cued task's terminal value (issue 42 item 5) -----------------------------------------------------------
+# After a remap the habit's critic, which reads the cue, values the old target; with ``told_value`` the planner
+# closes its horizon with the critic of the cue the told target had, found by imagining every cue's habit. A point
+# hand whose habit heads for its cue's practised target and whose critic is ``-C |hand - practised target|``.
+#: The practised targets of cues 0 and 1 (cm).
+PRACTISED = torch.tensor([[4.0, 0.0], [0.0, 4.0]])
+
+
+class CuedHand(ExactPointHand):
+    """State ``[hand, elbow, target, cue (2, one-hot)]``; the habit moves 2 cm a step towards its cue's practised
+    target (stopping there), the critic reads the cue, not the target."""
+
+    def __init__(self) -> None:
+        self.cfg = dataclasses.replace(AgentConfig(), gamma=GAMMA)
+        self.layout = StateLayout(Sizes(state_dim=8, extra_scale=(1.0, 1.0), cue_dim=2))
+        self.calls = 0
+
+    def _practised(self, s: torch.Tensor) -> torch.Tensor:
+        return s[..., 6:8] @ PRACTISED
+
+    def habit_u(self, s: torch.Tensor) -> torch.Tensor:
+        self.calls += 1
+        return ((self._practised(s) - s[..., END]) / self.scale).clamp(-1.0, 1.0)
+
+    def value(self, s: torch.Tensor) -> torch.Tensor:
+        return -C * torch.linalg.vector_norm(s[..., END] - self._practised(s), dim=-1)
+
+
+def _cued_state(hand, target, cue: int) -> torch.Tensor:
+    onehot = [1.0, 0.0] if cue == 0 else [0.0, 1.0]
+    return torch.tensor([[*hand, 0.0, 0.0, *target, *onehot]])
+
+
+def _told_planner(told: bool) -> MPCPlanner:
+    planner = MPCPlanner(MPCParams(horizon=3, candidates=4, elites=2, iterations=1, habit_candidates=1), seeds=[0],
+                         zone_radius=0.5)
+    planner.told_value = told
+    return planner
+
+
+def test_the_told_cue_is_the_one_whose_habit_ends_nearest_the_told_target():
+    agent = CuedHand()
+    remapped = _cued_state((1.0, 0.0), (0.0, 4.0), cue=0)  # cue 0 shown, told cue 1's practised target
+    assert _told_planner(True).told_cue(agent, remapped).tolist() == [[0.0, 1.0]]
+    unchanged = _cued_state((1.0, 0.0), (4.0, 0.0), cue=0)
+    assert _told_planner(True).told_cue(agent, unchanged).tolist() == [[1.0, 0.0]]
+    assert _told_planner(False).told_cue(agent, remapped) is None  # off: the shown cue's critic
+    no_cue = ExactPointHand()
+    no_cue.layout = StateLayout(Sizes(state_dim=8, extra_scale=(1.0, 1.0)))
+    assert _told_planner(True).told_cue(no_cue, remapped) is None  # a task without cues: nothing to find
+
+
+def test_the_cue_search_runs_once_per_cued_state():
+    agent, planner = CuedHand(), _told_planner(True)
+    state = _cued_state((1.0, 0.0), (0.0, 4.0), cue=0)
+    planner.told_cue(agent, state)
+    calls = agent.calls
+    assert calls == 3  # the horizon's 3 habit passes, every cue in one batch
+    planner.told_cue(agent, state)
+    assert agent.calls == calls
+    planner.told_cue(agent, state.clone())
+    assert agent.calls == 2 * calls
+
+
+@pytest.mark.parametrize("told, terminal_distance", [(False, 3.0), (True, math.sqrt(17.0))])
+def test_a_sequence_is_closed_by_the_critic_of_the_told_cue(told, terminal_distance):
+    """Standing still at (1, 0), told (0, 4) with cue 0 shown: 3 steps at sqrt(17) cm, then V of the hand
+    against cue 0's practised target (4, 0): 3 cm (the old target), or cue 1's, the told one: sqrt(17) cm."""
+    agent = CuedHand()
+    state = _cued_state((1.0, 0.0), (0.0, 4.0), cue=0)
+    value, hands, _ = _told_planner(told).rollout(agent, state, torch.zeros(1, 1, 3, 2))
+    reward = -math.sqrt(17.0) * (1 + GAMMA + GAMMA ** 2)
+    assert value.item() == pytest.approx(reward - GAMMA ** 3 * C * terminal_distance, rel=1e-6)
+    assert hands[0, 0, -1].tolist() == [1.0, 0.0]
+
+
+def test_with_the_told_value_the_plan_prefers_ending_towards_the_told_target():
+    """Two sequences tied on reward (each ends 3 steps at the same distances from the told target (0, 4)), one
+    ending nearer the old target (4, 0): the shown cue's critic prefers it, the told cue's does not."""
+    agent = CuedHand()
+    state = _cued_state((0.0, 0.0), (0.0, 4.0), cue=0)
+    right = torch.tensor([[0.5, 0.0], [0.0, 0.0], [0.0, 0.0]])   # to (1, 0): |(1,0)-(0,4)| = sqrt(17)
+    left = torch.tensor([[-0.5, 0.0], [0.0, 0.0], [0.0, 0.0]])   # to (-1, 0): the same distance to (0, 4)
+    u = torch.stack([right, left])[None]
+    shown, _, _ = _told_planner(False).rollout(agent, state, u)
+    told, _, _ = _told_planner(True).rollout(agent, state, u)
+    assert shown[0, 0] > shown[0, 1]  # the old target (4, 0) is nearer (1, 0)
+    assert told[0, 0] == pytest.approx(told[0, 1].item())  # the told critic sees the tie the reward sees
+
+
+def test_each_member_is_closed_by_its_own_told_cue():
+    """Two members, one rollout each: member 0 shown cue 0 and told cue 1's target, member 1 shown cue 1 and told
+    cue 0's; standing still at (1, 0), each is valued by the critic of the cue it was told."""
+    agent = CuedHand()
+    state = torch.cat([_cued_state((1.0, 0.0), (0.0, 4.0), cue=0), _cued_state((1.0, 0.0), (4.0, 0.0), cue=1)])
+    planner = MPCPlanner(MPCParams(horizon=3, candidates=4, elites=2, iterations=1, habit_candidates=1), seeds=[0, 1],
+                         zone_radius=0.5)
+    planner.told_value = True
+    assert planner.told_cue(agent, state).tolist() == [[0.0, 1.0], [1.0, 0.0]]
+    value, _, _ = planner.rollout(agent, state, torch.zeros(2, 1, 3, 2))
+    steps = 1 + GAMMA + GAMMA ** 2
+    expected = [-math.sqrt(17.0) * steps - GAMMA ** 3 * C * math.sqrt(17.0), -3.0 * steps - GAMMA ** 3 * C * 3.0]
+    assert value[:, 0].tolist() == pytest.approx(expected, rel=1e-6)

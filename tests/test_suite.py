@@ -51,8 +51,9 @@ def test_task_files_state_only_what_differs_from_the_defaults(task):
 
     spec, default = load_task(task), TaskSpec(name=task)
     data = tomllib.loads((paths.tasks_dir() / f"{task}.toml").read_text())
-    stated = {f"{sec}.{k}" for sec, table in data.items() if isinstance(table, dict) and sec != "cues" for k in table}
-    stated |= {"cues"} & set(data)  # [cues] is one field (TaskSpec.cues), its keys one table
+    whole = {"cues", "signals", "deliberation", "trials"}  # tables that are one field each (TaskSpec.cues, ...)
+    stated = {f"{sec}.{k}" for sec, table in data.items() if isinstance(table, dict) and sec not in whole for k in table}
+    stated |= whole & set(data)  # such a table's keys are one field's
     changed = [f.name for f in dataclasses.fields(spec) if f.name not in ("name", "description", "plant")
                and getattr(spec, f.name) != getattr(default, f.name)]
     changed += [f"plant.{f.name}" for f in dataclasses.fields(spec.plant)  # [plant]: one key per field

@@ -58,7 +58,7 @@ def test_missing_keys_take_paper_defaults(tmp_path):
 
 def test_shipped_task_files():
     names = task_names()
-    assert len(names) == 20
+    assert len(names) == 24
     for name in names:
         spec = load_task(name)
         assert spec.link_lengths == (5.0, 8.0) and spec.steps_per_episode == 30 and spec.zone_radius == 0.5

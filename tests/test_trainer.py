@@ -16,7 +16,7 @@ from apac_mj.run.run_dir import METRIC_COLUMNS, TIMING_COLUMNS
 from apac_mj.run.trainer import train
 from apac_mj.util import files
 
-from conftest import TINY, deterministic
+from conftest import TINY, deterministic, through_a_checkpoint
 
 
 def tiny_config(seeds=(0, 1), episodes=4, agent="apac", task="changing_target", **kw) -> TrainConfig:
@@ -193,8 +193,6 @@ def test_checkpoint_with_code_is_refused(tmp_path, capsys):
                                             ("changing_target_intermittent", "kinematic"),
                                             ("static_target_changing_kinematics", "kinematic")])
 def test_vec_env_state_roundtrip_mid_episode(task, actuation):
-    import io
-
     from apac_mj.suite.vec_env import VecEnv
 
     def make():
@@ -212,10 +210,7 @@ def test_vec_env_state_roundtrip_mid_episode(task, actuation):
     env = make()
     env.reset()
     play(env, actions[:7])
-    buf = io.BytesIO()
-    torch.save(env.get_state(), buf)
-    buf.seek(0)
-    state = torch.load(buf, weights_only=True)
+    state = through_a_checkpoint(env.get_state())
     reference = play(env, actions[7:])
     restored = make()
     restored.set_state(state)

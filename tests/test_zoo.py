@@ -50,7 +50,7 @@ def _grid(run: Path) -> pd.DataFrame:
 def test_an_fp32_cell_reproduces_its_runs_frozen_tests_exactly(tiny_run, tmp_path):
     """Every network the tests read ships (the target actor and critic too: delta reads Q'(s', pi'(s')))."""
     expected = _grid(tiny_run)
-    cell = zoo.export(tiny_run, tmp_path / "cell32")  # fp32: the default
+    cell = zoo.export(tiny_run, tmp_path / "cell32", dtype="fp32")
     pd.testing.assert_frame_equal(_grid(zoo.materialize(cell)), expected)
     manifest = zoo.read_manifest(cell)
     assert set(manifest["networks"]) == {"actor", "critic", "target_actor", "target_critic", "forward_model",

@@ -123,8 +123,8 @@ class Agent:
             decay["inverse_model"] = cfg.inverse_weight_decay
         if dynamics is not None:
             self.model_updates = dynamics.model_updates
-            self.dynamics_model = build_dynamics_model(dynamics.model_hidden, init, A, X,
-                                                       dynamics.model_heads).to(self.device)
+            self.dynamics_model = build_dynamics_model(dynamics.model_hidden, init, A, X, dynamics.model_heads,
+                                                       dynamics.held_out_heads).to(self.device)
             self.trained["dynamics_model"], decay["dynamics_model"] = dynamics.model_lr, dynamics.model_weight_decay
             self.networks, self.loss_names = (*NETWORKS, "dynamics_model"), (*LOSSES, "dynamics")
         return decay

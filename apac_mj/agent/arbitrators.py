@@ -29,7 +29,8 @@ import torch
 from apac_mj.agent.arbitration import blend, ema, step_signals
 from apac_mj.rules import (MPCParams, ReliabilityParams, SpeedAccuracyParams, UncertaintyParams,
                            ValueOfComputationParams, VisionAwareParams)
-from apac_mj.types import END, HABIT_COST, PLANNING_COST, TARGET, ArbitrationContext, Arbitrator, Decision, StepInfo
+from apac_mj.types import (END, HABIT_COST, PLANNING_COST, TARGET, ArbitrationContext, Arbitrator, Decision, Planner,
+                           Proposal, StepInfo, WorldModel)
 
 if TYPE_CHECKING:
     from apac_mj.config import AgentConfig
@@ -284,6 +285,13 @@ class ValueOfComputationArbitrator(RunningArbitrator):
     plans for the ``k`` with the largest positive net value ``G[b, k] - cost(k)``, else the habit acts.
     An entry never measured is optimistic (full planning). In the planning phase (``planning_episodes``)
     every step plans at the full budget.
+
+    What a plan gained (``voc.gain``, :meth:`plan_gains`) and which steps teach the table (``voc.learn_on``):
+    by default each iteration's best sequence minus the habit's valued through a held-out dynamics head, a model
+    the plan was not selected by (:func:`heldout_gains`; it can be negative), learned for every ``k`` on the steps
+    that planned the full budget whatever the rule chose: the planning phase and, in training, a re-exploration
+    with probability ``voc.explore``. The releases before issue 42 (``gain = "imagined"``, ``learn_on =
+    "planned"``): the imagined best minus the habit's imagined value, learned where the rule chose to plan.
     """
 
     needs_habit_probe = True
@@ -294,6 +302,9 @@ class ValueOfComputationArbitrator(RunningArbitrator):
         params: ValueOfComputationParams = cfg.params[ValueOfComputationParams.table]
         super().__init__(cfg, params.window)
         self.params, self.K = params, cfg.params[MPCParams.table].iterations
+        #: Whether the actor explores this step (training; the episode loop sets it before every decision): only
+        #: then does the rule re-explore (``voc.explore``).
+        self.exploring = False
         if self.K > self.STATS["gain"].shape[1]:
             raise ValueError(f"the graded rule keeps gains for at most {self.STATS['gain'].shape[1]} iterations; "
                              f"agent.mpc.iterations = {self.K}")
@@ -330,14 +341,60 @@ class ValueOfComputationArbitrator(RunningArbitrator):
         inputs = {"habit_final_distance": probe.final_distance.float().cpu(), "habit_value": probe.value.float().cpu(),
                   "distance": distance, "expected_gain": gain[rows, best], "planning_cost": cost[rows, best],
                   "iterations": iterations.float()}
+        if self.params.learn_on == "unselected":
+            explored = self.explores(ctx) & ~planning
+            plan, iterations = plan | explored, torch.where(explored, self.K, iterations)
+            inputs.update(iterations=iterations.float(), explored=explored.float())
         return Decision(~plan, inputs, iterations)
+
+    def explores(self, ctx: ArbitrationContext) -> torch.Tensor:
+        """``[E]`` bools: the steps re-explored at the full budget (training only; a uniform draw of each member's
+        (episode, step) below ``voc.explore``, so the same in an ensemble and alone)."""
+        if not self.exploring or self.params.explore == 0:
+            return torch.zeros(ctx.E, dtype=torch.bool)
+        p = self.params.explore
+        draws = [e >= self.planning_episodes and np.random.default_rng([EXPLORE_STREAM, e, t]).random() < p
+                 for e, t in zip(ctx.episode.tolist(), ctx.step.tolist())]
+        return torch.as_tensor(draws, dtype=torch.bool)
+
+    def plan_gains(self, agent: WorldModel, ctx: ArbitrationContext, plan: Proposal, planner: Planner) -> np.ndarray:
+        """``[E, K]`` what the plan gained over the habit after each iteration (NaN past a member's budget), as
+        ``voc.gain`` measures it: the iteration's best sequence minus the habit's valued through the held-out
+        dynamics heads (``heldout``), the critic's advantage of its first action (``advantage``), or
+        (``imagined``) through the model that selected it."""
+        imagined = (plan.best_values - plan.habit_value[:, None]).numpy()
+        # an agent built without a held-out head (another kind's run re-arbitrated by this rule): the imagined gain
+        unheld = self.params.gain == "heldout" and getattr(getattr(agent, "dynamics_model", None), "held_out", 0) < 1
+        if self.params.gain == "imagined" or plan.best_sequences is None or unheld:
+            return imagined
+        state, best = ctx.state, plan.best_sequences.to(ctx.state.device)
+        if self.params.gain == "advantage":
+            gains = critic_advantage(agent, state, best[:, :, 0])
+        else:
+            gains = heldout_gains(agent, planner, state, best)
+        return np.where(np.isfinite(imagined), gains.float().cpu().numpy(), np.nan)
 
     def observe(self, info: StepInfo, mask: np.ndarray, adapt: bool = True) -> None:
         """Planned steps teach the gain table (``adapt``): each iteration's measured gain over the habit, in the
-        bin the step was decided in; the time statistics learn from every step's measured shares."""
+        bin the step was decided in (``learn_on = "unselected"``: only the full-budget steps of the planning phase
+        and of a re-exploration); the time statistics learn from every step's measured shares."""
         if not adapt or info.plan_gains is None:
             return
         E, m = len(mask), _mask(mask)
+        if self.params.learn_on == "unselected":  # only full-budget steps the rule did not choose teach the gains
+            explored = info.arbitration.get("explored", np.zeros(E))  # none: a step the rule did not decide (babbling)
+            unselected = (torch.as_tensor(info.episode) < self.planning_episodes) | torch.as_tensor(explored > 0)
+            full = torch.as_tensor(np.asarray(info.plan_iterations) >= self.K)
+            self._learn_gains(info, m & unselected & full)
+            self._learn_times(info, m)
+            return
+        self._learn_gains(info, m)
+        self._learn_times(info, m)
+
+    def _learn_gains(self, info: StepInfo, m: torch.Tensor) -> None:
+        """Each iteration's measured gain (finite entries of ``info.plan_gains``) moves its entry, in the bin the
+        step was decided in, for the members in ``m``."""
+        E = len(m)
         b = self.bins(torch.as_tensor(info.arbitration["habit_final_distance"]), info.zone_radius)
         table, rows = self.stat("gain", E).clone(), torch.arange(E)
         measured = torch.as_tensor(info.plan_gains, dtype=torch.float32)
@@ -346,7 +403,6 @@ class ValueOfComputationArbitrator(RunningArbitrator):
             m[:, None] & torch.isfinite(measured),
             torch.where(torch.isnan(entry), measured, entry + self.rate * (measured - entry)), entry)
         self.stats["gain"] = table
-        self._learn_times(info, m)
 
     def _learn_times(self, info: StepInfo, m: torch.Tensor) -> None:
         E = len(m)
@@ -357,6 +413,72 @@ class ValueOfComputationArbitrator(RunningArbitrator):
         per_iteration = (seconds - torch.nan_to_num(habit_s)) / iters.clamp(min=1)
         self.stats["iteration_seconds"] = ema(self.stat("iteration_seconds", E), per_iteration, self.rate,
                                               m & (iters > 0))
+
+
+#: The spawn key of the graded rule's re-exploration draws (:meth:`ValueOfComputationArbitrator.explores`).
+EXPLORE_STREAM = 42
+
+
+@torch.no_grad()
+def critic_advantage(agent: WorldModel, state: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+    """``[E, B]`` the critic's advantage ``Q(s, a) - Q(s, pi(s))`` (cm of return) of the first actions ``u``
+    ``[E, B, A]`` (tanh units, as the planner's sequences) in ``state`` ``[E, S]``; both actions as the plant
+    executes them (``executable``), as the critic learned them."""
+    B = u.shape[1]
+    s = state[:, None].expand(state.shape[0], B + 1, state.shape[1])
+    habit = agent.habit_u(s[:, :1])
+    actions = agent.executable(agent.to_action(torch.cat([habit, u], 1), s), s)
+    q = agent.critic(agent.inputs.habit(agent.inputs.state(s)), agent.inputs.act(actions))
+    return q[:, 1:] - q[:, :1]
+
+
+def held_out_dynamics(rule: Arbitrator, mpc: MPCParams) -> MPCParams:
+    """The dynamics model an agent trains for its planner (``mpc``): under a graded rule that values its plans by a
+    held-out head (``voc.gain = "heldout"``), one head more, held out, unless ``mpc`` holds some out itself
+    (``mpc.held_out_heads``); the planner still plans through ``mpc.model_heads`` heads."""
+    base = getattr(rule, "base", rule)
+    if not isinstance(base, ValueOfComputationArbitrator) or base.params.gain != "heldout" or mpc.held_out_heads:
+        return mpc
+    return dataclasses.replace(mpc, model_heads=mpc.model_heads + 1, held_out_heads=1)
+
+
+class AgentView:
+    """An agent with another imagination (a subclass's ``imagine``); everything else is the agent's."""
+
+    def __init__(self, agent: WorldModel) -> None:
+        self.agent = agent
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self.agent, name)
+
+
+class HeldOutView(AgentView):
+    """An agent whose imagination is its held-out dynamics heads (``mpc.held_out_heads``: trained beside the others
+    on the same transitions from their own initializations, but not planned through): a model the plans were not
+    selected by."""
+
+    def __init__(self, agent: WorldModel) -> None:
+        if getattr(getattr(agent, "dynamics_model", None), "held_out", 0) < 1:
+            raise ValueError("voc.gain = 'heldout' needs a held-out dynamics head (an agent built for the graded "
+                             "rule has one: apac_mj.run.build.make_agent; or set agent.mpc.held_out_heads >= 1)")
+        super().__init__(agent)
+
+    @torch.no_grad()
+    def imagine(self, state: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        """The next state ``[E, B, S]`` the held-out heads predict (as ``Agent.imagine`` through the planned ones)."""
+        a = self.agent
+        x = a.inputs.state(state)
+        change = a.dynamics_model.held_out_mean(a.inputs.model_input(x, action))
+        return a.inputs.from_motion(a.inputs.motion_x(x) + change, state)
+
+
+@torch.no_grad()
+def heldout_gains(agent: WorldModel, planner: Planner, state: torch.Tensor, best: torch.Tensor) -> torch.Tensor:
+    """``[E, K]`` the best sequences ``best`` ``[E, K, H, A]`` minus the habit's imagined sequence, both valued as
+    the planner values them (``planner.rollout``) through the held-out heads (:class:`HeldOutView`)."""
+    _, _, habit = planner._habit(agent, state)  # the habit's sequence the plan was compared with (cached)
+    value, _, _ = planner.rollout(HeldOutView(agent), state, torch.cat([habit, best], 1))
+    return value[:, 1:] - value[:, :1]
 
 
 class VisionAwareArbitrator(Arbitrator):
@@ -382,6 +504,21 @@ class VisionAwareArbitrator(Arbitrator):
     def needs_habit_probe(self) -> bool:  # type: ignore[override]
         """Whether the base rule reads the habit's probe (this rule adds none)."""
         return self.base.needs_habit_probe
+
+    @property
+    def plan_gains(self) -> object:
+        """The base rule's own estimate of a plan's gain (None: the planner's imagined one)."""
+        return getattr(self.base, "plan_gains", None)
+
+    @property
+    def exploring(self) -> bool:
+        """Whether the actor explores this step, passed on to a base rule that re-explores."""
+        return bool(getattr(self.base, "exploring", False))
+
+    @exploring.setter
+    def exploring(self, value: bool) -> None:
+        if hasattr(self.base, "exploring"):
+            self.base.exploring = value
 
     def use_habit(self, ctx: ArbitrationContext) -> Decision:
         decision = self.base.use_habit(ctx)

@@ -159,34 +159,48 @@ def build_forward_model(hidden: Sequence[int], scale: float, gens: Sequence[torc
 class DynamicsHeads(nn.Module):
     """``K`` dynamics models per member (each an :class:`EnsembleMLP` over the members), trained side by side
     on the same minibatches from their own initializations; the prediction is their mean (a model ensemble,
-    PETS's, propagated by its expectation). :meth:`each` gives every head's, ``[K, ...]``."""
+    PETS's, propagated by its expectation). :meth:`each` gives every head's, ``[K, ...]``. The last ``held_out``
+    heads are trained as the others but left out of the prediction: :meth:`held_out_mean` is theirs, a model the
+    plans were not selected by (``mpc.held_out_heads``, the graded rule's ``voc.gain = "heldout"``)."""
 
-    def __init__(self, heads: Sequence[EnsembleMLP]) -> None:
+    def __init__(self, heads: Sequence[EnsembleMLP], held_out: int = 0) -> None:
         super().__init__()
         if len(heads) < 2:
             raise ValueError(f"DynamicsHeads needs two heads or more, got {len(heads)} (one: the plain model)")
+        if not 0 <= held_out < len(heads):
+            raise ValueError(f"held_out must be in [0, {len(heads) - 1}] (a head must be planned through), "
+                             f"got {held_out}")
         self.heads = nn.ModuleList(heads)
+        self.held_out = held_out
 
     def each(self, x: torch.Tensor) -> torch.Tensor:
         return torch.stack([h(x) for h in self.heads])
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.each(x).mean(0)
+        used = len(self.heads) - self.held_out
+        return torch.stack([h(x) for h in self.heads[:used]]).mean(0)
+
+    def held_out_mean(self, x: torch.Tensor) -> torch.Tensor:
+        """The held-out heads' mean prediction (an error where none is held out)."""
+        if self.held_out == 0:
+            raise ValueError("no dynamics head is held out (mpc.held_out_heads = 0)")
+        return torch.stack([h(x) for h in self.heads[len(self.heads) - self.held_out:]]).mean(0)
 
 
 def build_dynamics_model(hidden: Sequence[int], gens: Sequence[torch.Generator], action_dim: int = 2,
-                         extra_dim: int = 0, heads: int = 1) -> nn.Module:
+                         extra_dim: int = 0, heads: int = 1, held_out: int = 0) -> nn.Module:
     """The planning system's dynamics model (beyond the paper; kinds that plan through a model): the motion
     [end, elbow, extra] and the action, normalized (6 + extra) -> relu -> relu -> the motion's change over the
     step (4 + extra), normalized, linear: a residual model, as model-based RL's dynamics models are. ``heads``
     > 1: that many, initialized one after another from the members' generators, averaged
-    (:class:`DynamicsHeads`); 1: the single model (its parameters as before the heads existed)."""
+    (:class:`DynamicsHeads`; the last ``held_out`` of them left out of the mean); 1: the single model (its parameters
+    as before the heads existed)."""
     sizes = [4 + extra_dim + action_dim, *hidden, 4 + extra_dim]
     if heads < 1:
         raise ValueError(f"heads must be >= 1, got {heads}")
     if heads == 1:
         return EnsembleMLP(sizes, "relu", "linear", 1.0, gens)
-    return DynamicsHeads([EnsembleMLP(sizes, "relu", "linear", 1.0, gens) for _ in range(heads)])
+    return DynamicsHeads([EnsembleMLP(sizes, "relu", "linear", 1.0, gens) for _ in range(heads)], held_out)
 
 
 def build_inverse_model(hidden: Sequence[int], gens: Sequence[torch.Generator], action_dim: int = 2,

@@ -56,7 +56,13 @@ class MPCPlanner(Planner):
         #: The last decision's best sequences, imagined (recordings): hand ``[E, H + 1, 2]`` and a few
         #: candidates' hands ``[E, C, H + 1, 2]`` (cm); None before the first plan.
         self.last_plan: dict[str, torch.Tensor] | None = None
+        #: On a cued task, close the horizon with the critic of the cue that the told target had (issue 42 item 5):
+        #: the cue whose habit the model imagines ending nearest the told target (:meth:`told_cue`). False: the
+        #: shown cue's critic (the habit's view), which after a remap values the old target. The forced-response
+        #: test sets it (``TestPlan.told_value``); training keeps False (under the practised mapping both agree).
+        self.told_value = False
         self._habit_cache: tuple[torch.Tensor, ...] | None = None
+        self._told_cache: tuple[torch.Tensor, torch.Tensor | None] | None = None
 
     # -- what a checkpoint keeps ----------------------------------------------------------------
     def reset(self, mask: np.ndarray) -> None:
@@ -84,6 +90,7 @@ class MPCPlanner(Planner):
         hands ``[E, B, H + 1, 2]`` and the sequences ``[E, B, H, A]``."""
         H, gamma = self.p.horizon, agent.cfg.gamma
         B = 1 if u is None else u.shape[1]
+        cue = self.told_cue(agent, state)
         s = state[:, None].expand(state.shape[0], B, state.shape[1])
         value = torch.zeros(s.shape[:2], device=state.device)
         alive = torch.ones_like(value)
@@ -96,8 +103,25 @@ class MPCPlanner(Planner):
             value = value - gamma ** t * alive * distance
             alive = alive * (1.0 - self._arrived(s, distance, agent.layout.motion))
             hands.append(s[..., END])
-        value = value + gamma ** H * alive * agent.value(s)
+        value = value + gamma ** H * alive * agent.value(s if cue is None else _with_cue(s, cue, agent.layout.cue))
         return value, torch.stack(hands, 2), torch.stack(taken, 2)
+
+    def told_cue(self, agent: WorldModel, state: torch.Tensor) -> torch.Tensor | None:
+        """``[E, cues]``: the one-hot cue the told target had, where :attr:`told_value` is set on a cued task (the
+        habit of every cue imagined ``horizon`` steps from ``state`` in one batch; the cue whose hand ends nearest
+        the state's target), computed once per state; None: the state's own cue."""
+        layout = agent.layout
+        if not (self.told_value and layout.cue_dim):
+            return None
+        if self._told_cache is None or self._told_cache[0] is not state:
+            n = layout.cue_dim
+            s = _with_cue(state[:, None].expand(state.shape[0], n, state.shape[1]),
+                          torch.eye(n, dtype=state.dtype, device=state.device)[None], layout.cue)
+            for _ in range(self.p.horizon):
+                s = agent.imagine(s, agent.executable(agent.to_action(agent.habit_u(s), s), s))
+            distance = torch.linalg.vector_norm(s[..., END] - state[:, None, TARGET], dim=-1)
+            self._told_cache = (state, torch.nn.functional.one_hot(distance.argmin(1), n).to(state.dtype))
+        return self._told_cache[1]
 
     def _arrived(self, s: torch.Tensor, distance: torch.Tensor, motion: slice) -> torch.Tensor:
         """Where the imagined hand arrived: in the zone and (a stop criterion) every joint speed, the state's
@@ -123,6 +147,7 @@ class MPCPlanner(Planner):
         p, state, E = self.p, ctx.state, ctx.E
         budget = torch.as_tensor(iterations).long().clamp(0, p.iterations)
         best_values = torch.full((E, p.iterations), float("nan"))
+        best_sequences = torch.zeros(E, p.iterations, p.horizon, self.action_dim)  # Proposal.best_sequences
         if not bool((budget > 0).any()):
             self._shift(self.mean)
             return Proposal(torch.zeros(E, self.action_dim, device=state.device), budget, best_values, None)
@@ -145,12 +170,13 @@ class MPCPlanner(Planner):
             best_h = torch.where(better[:, None, None], cand_h, best_h)
             best_v = torch.where(better, cand_v, best_v)
             best_values[:, i] = torch.where(running, best_v.cpu(), float("nan"))
+            best_sequences[:, i] = torch.where(running[:, None, None], best_u.cpu(), 0.0)
             last_h = h
         planned = (budget > 0).to(state.device)
         self.mean = torch.where(planned[:, None, None].cpu(), self._shifted(mean).cpu(), self._shifted(self.mean))
         self.last_plan = {"hand": best_h.cpu(), "candidates": last_h[:, :8].cpu()}
         action = agent.to_action(best_u[:, 0], state)
-        return Proposal(action, budget, best_values, habit_value[:, 0].cpu())
+        return Proposal(action, budget, best_values, habit_value[:, 0].cpu(), best_sequences)
 
     def _habit_pool(self, agent: WorldModel, state: torch.Tensor, budget: torch.Tensor, habit_value: torch.Tensor,
                     habit_hands: torch.Tensor, habit_u: torch.Tensor) -> tuple[torch.Tensor, ...]:
@@ -210,6 +236,13 @@ def _best(u: torch.Tensor, v: torch.Tensor, h: torch.Tensor) -> tuple[torch.Tens
     k = v.argmax(1)
     rows = torch.arange(len(k), device=k.device)
     return u[rows, k], v[rows, k], h[rows, k]
+
+
+def _with_cue(s: torch.Tensor, cue: torch.Tensor, where: slice) -> torch.Tensor:
+    """States ``s`` ``[E, B, S]`` with the cue entries ``where`` replaced by ``cue`` (``[E, cues]`` or
+    broadcastable to ``[E, B, cues]``)."""
+    cue = cue[:, None] if cue.dim() == 2 else cue
+    return torch.cat([s[..., :where.start], cue.expand(*s.shape[:-1], cue.shape[-1]), s[..., where.stop:]], -1)
 
 
 def _stream_seed(seed: int) -> int:

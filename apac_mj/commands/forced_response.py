@@ -4,12 +4,16 @@ from __future__ import annotations
 
 import argparse
 
+from apac_mj.commands import action_parser, study_arguments
+
 PROTOCOL = """\
 The protocol (docs/forced_response.md): every agent kind trains on a cued task (tasks/cued_targets.toml: four
 cues, each with its target) for each practice length, then its frozen networks are tested after the remap
 (two cues' targets swapped) at a range of allowed preparation times, many trials per time. A trial's habit is
-ready after a latency, its planner after its iterations (timing.*); at the deadline the arbitrator decides with
-what is ready, and before anything is ready the arm does not move (a time-out)."""
+ready after the cue's perception and one actor pass, its rule and its planner after the network passes they
+compute, each at a measured price (timing.*; apac_mj.run.timing); at the deadline the arbitrator decides with
+what is ready, and before anything is ready the agent guesses one of the cued targets (default=guess; "still":
+no movement, a time-out)."""
 
 RUN_EPILOG = PROTOCOL + """
 
@@ -31,7 +35,7 @@ preparation time and cue) records that episode in its `episode` column.
 
 examples:
   apac-mj forced-response test results/forced_response/runs/apac --out apac.parquet
-  apac-mj forced-response test RUN --out t.parquet --set prep_times_ms=250,450,900 --set timing.habit_latency_ms=250"""
+  apac-mj forced-response test RUN --out t.parquet --set prep_times_ms=250,450,900 --set timing.perception_ms=350"""
 
 REPORT_EPILOG = """\
 Reads STUDY/tests/p<episodes>/<kind>.parquet; every table is checked (columns, finite non-negative counts that
@@ -50,7 +54,7 @@ examples:
   apac-mj forced-response record results/forced_response/runs/apac_voc --out trials.rrd --prep-times 250,350,900"""
 
 #: The protocol fields a single test takes (the rest are the study's).
-TEST_FIELDS = ("prep_times_ms", "trials", "repeats")
+TEST_FIELDS = ("prep_times_ms", "trials", "repeats", "default", "told_value")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -66,26 +70,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     _record_parser(actions)
 
 
-def _parser(actions: argparse._SubParsersAction, name: str, help: str, epilog: str) -> argparse.ArgumentParser:
-    return actions.add_parser(name, help=help, description=help[0].upper() + help[1:] + ".", epilog=epilog,
-                              formatter_class=argparse.RawDescriptionHelpFormatter)
-
-
 def _run_parser(actions: argparse._SubParsersAction) -> None:
     from apac_mj.experiments.forced_response import Protocol
     from apac_mj.run.timing import Timing
     from apac_mj.util.overrides import field_help
 
-    p = _parser(actions, "run", "train, remap, test and report the whole protocol into a study directory",
+    p = action_parser(actions, "run", "train, remap, test and report the whole protocol into a study directory",
                 RUN_EPILOG + "\n\nProtocol fields (--set NAME=VALUE):\n" + field_help(Protocol, skip=("timing", "run"))
                 + "\n\nTiming fields (--set timing.NAME=VALUE, ms):\n" + field_help(Timing)
                 + "\n\nThe run every kind trains: the fields of `apac-mj train --help` (--set task=..., seeds=0-9, "
                 "batch_size=64, agent.mpc.horizon=4, ...; not episodes: the practice lengths set them)")
-    p.add_argument("--out", required=True, metavar="STUDY_DIR", help="the study directory (created or resumed)")
-    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="a protocol, timing, run or agent field (repeatable): seeds=0-9, practice=100,400,1000, "
-                        "trials=100, timing.habit_latency_ms=300, batch_size=64, ...")
-    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    study_arguments(p, "a protocol, timing, run or agent field (repeatable): seeds=0-9, practice=100,400,1000, "
+                       "trials=100, timing.perception_ms=400, batch_size=64, ...")
     p.set_defaults(func=run_study)
 
 
@@ -94,7 +90,7 @@ def _test_parser(actions: argparse._SubParsersAction) -> None:
     from apac_mj.run.timing import Timing
     from apac_mj.util.overrides import field_help
 
-    p = _parser(actions, "test", "the forced-response test of one trained run on a cued task, into a table",
+    p = action_parser(actions, "test", "the forced-response test of one trained run on a cued task, into a table",
                 TEST_EPILOG + "\n\nTest fields (--set NAME=VALUE):\n"
                 + field_help(Protocol, skip=[n for n in _protocol_fields() if n not in TEST_FIELDS])
                 + "\n\nTiming fields (--set timing.NAME=VALUE, ms):\n" + field_help(Timing))
@@ -103,12 +99,12 @@ def _test_parser(actions: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, metavar="FILE.parquet", help="the table to write (never overwritten)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="a test or timing field (repeatable): prep_times_ms=250,450,900, trials=100, repeats=3, "
-                        "timing.habit_latency_ms=250")
+                        "timing.perception_ms=350")
     p.set_defaults(func=run_test)
 
 
 def _report_parser(actions: argparse._SubParsersAction) -> None:
-    p = _parser(actions, "report", "the report of a study's tests: curves, peak table and figure", REPORT_EPILOG)
+    p = action_parser(actions, "report", "the report of a study's tests: curves, peak table and figure", REPORT_EPILOG)
     p.add_argument("study", metavar="STUDY_DIR", help="the study directory (its tests/)")
     p.add_argument("--out", default=None, metavar="DIR", help="where the report goes (default STUDY_DIR/report)")
     p.set_defaults(func=report)
@@ -118,7 +114,7 @@ def _record_parser(actions: argparse._SubParsersAction) -> None:
     from apac_mj.run.timing import Timing
     from apac_mj.util.overrides import field_help
 
-    p = _parser(actions, "record", "one trial per preparation time of a trained run, into a Rerun recording",
+    p = action_parser(actions, "record", "one trial per preparation time of a trained run, into a Rerun recording",
                 RECORD_EPILOG + "\n\nTiming fields (--set timing.NAME=VALUE, ms):\n" + field_help(Timing))
     p.add_argument("run_dir", metavar="RUN_DIR", help="the trained run directory (a cued task), or a zoo cell "
                                                       "(zoo:NAME or its directory; docs/zoo.md)")
@@ -130,7 +126,7 @@ def _record_parser(actions: argparse._SubParsersAction) -> None:
     p.add_argument("--cue", type=int, default=None, help="the cue shown (default the first remapped one)")
     p.add_argument("--member", type=int, default=0, help="which seed of the run (its index)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="timing.NAME=VALUE",
-                   help="a timing field (repeatable): timing.habit_latency_ms=250")
+                   help="a timing field (repeatable): timing.perception_ms=350")
     p.set_defaults(func=record)
 
 
@@ -183,7 +179,8 @@ def plan_from(items: list[str], fields: tuple[str, ...] = TEST_FIELDS):
     given = overrides.typed_fields(Protocol, data, "--set ", skip=skip)
     defaults = Protocol.__dataclass_fields__
     values = {n: given.get(n, defaults[n].default) for n in TEST_FIELDS}
-    return TestPlan(tuple(float(t) for t in values["prep_times_ms"]), values["trials"], values["repeats"], 0, timing)
+    return TestPlan(tuple(float(t) for t in values["prep_times_ms"]), values["trials"], values["repeats"], 0, timing,
+                    values["default"], values["told_value"])
 
 
 def run_study(args: argparse.Namespace) -> int:
@@ -203,7 +200,8 @@ def run_test(args: argparse.Namespace) -> int:
 
     plan = plan_from(args.overrides)
     _new_file(args.out, ".parquet")
-    df = test_run(resolve_run(args.run_dir), plan.prep_times_ms, plan.timing, plan.trials, plan.repeats)
+    df = test_run(resolve_run(args.run_dir), plan.prep_times_ms, plan.timing, plan.trials, plan.repeats,
+                  default=plan.default, told=plan.told_value)
     atomic_write_parquet(args.out, df)
     print(args.out)
     return 0
@@ -224,7 +222,7 @@ def record(args: argparse.Namespace) -> int:
     times = tuple(_ms(v) for v in args.prep_times.split(","))
     _new_file(args.out, ".rrd")
     print(fr.record_trials(resolve_run(args.run_dir), args.out, times, variant=args.variant, cue=args.cue, member=args.member,
-                           timing=plan.timing))
+                           timing=plan.timing, default=plan.default, told=plan.told_value))
     return 0
 
 

@@ -25,7 +25,7 @@ PRACTICE = (100, 400, 1000)
 STUDY_KINDS = ("ddpg", "spac", "apac", "apac_voc")
 
 if TYPE_CHECKING:
-    from apac_mj.run.forced_response import Candidates
+    from apac_mj.run.forced_response import Candidates, Schedule
     from apac_mj.run.rollout import EpisodeLoop
 
 
@@ -52,6 +52,12 @@ class Protocol:
     repeats: int = 3
     #: Time in a decision.
     timing: Timing = Timing()
+    #: The response when nothing is ready by the deadline: "guess" (a uniformly drawn cued target) or "still"
+    #: (no movement: a time-out).
+    default: str = "guess"
+    #: The MPC planner closes its horizon with the critic of the cue the told target had; false (the default):
+    #: the shown cue's, which after a remap values the old target (:attr:`TestPlan.told_value`).
+    told_value: bool = False
     #: The run every kind trains (its kind and episodes are the study's): the cued task (its ``[cues] swap``
     #: names the remapped cues), the seeds (side by side in each kind's run) and every agent setting, as
     #: ``apac-mj train`` has them (``--set seeds=0-2``, ``--set batch_size=128``, ``--set agent.mpc.horizon=4``).
@@ -69,7 +75,8 @@ class Protocol:
 
     def test_plan(self, seed: int = 0) -> TestPlan:
         """The test each practice length ends with."""
-        return TestPlan(tuple(float(t) for t in self.prep_times_ms), self.trials, self.repeats, seed, self.timing)
+        return TestPlan(tuple(float(t) for t in self.prep_times_ms), self.trials, self.repeats, seed, self.timing,
+                        self.default, self.told_value)
 
     def train_config(self, kind: str, episodes: int) -> TrainConfig:
         """The run of ``kind`` at a practice length of ``episodes``."""
@@ -119,7 +126,8 @@ def _kind(study: Path, protocol: Protocol, kind: str, progress: bool, say: Calla
             continue
         train(protocol.train_config(kind, episodes), run_dir, progress=progress)
         say(f"forced-response test: {kind} after {episodes} episodes")
-        df = test_run(run_dir, plan.prep_times_ms, plan.timing, plan.trials, plan.repeats, expect_episodes=episodes)
+        df = test_run(run_dir, plan.prep_times_ms, plan.timing, plan.trials, plan.repeats, expect_episodes=episodes,
+                      default=plan.default, told=plan.told_value)
         atomic_write_parquet(out, df)
 
 
@@ -177,11 +185,15 @@ def _not_extended(stored: dict, record: dict) -> list[str]:
 
 def record_trials(run_dir: str | Path, out: str | Path, prep_times_ms: tuple[float, ...] = (250.0, 450.0, 900.0),
                   variant: str | None = None, cue: int | None = None, member: int = 0, seed: int = 0,
-                  timing: Timing = Timing(), say: Callable[[str], None] = print) -> Path:
+                  timing: Timing = Timing(), say: Callable[[str], None] = print, default: str = "guess",
+                  told: bool = False) -> Path:
     """One forced-response trial of a trained run's ``member`` at each of ``prep_times_ms`` (default: short,
-    intermediate, long) into one Rerun recording ``out``: the same trial's latencies (drawn with ``seed``) at each
-    deadline, a remapped ``cue`` (default the first), each episode's start event saying when the habit and the
-    planner were ready and which acted (each also passed to ``say``); a time-out is one step without movement."""
+    intermediate, long) into one Rerun recording ``out``: the same trial's latencies and guess (drawn with
+    ``seed``) at each deadline, a remapped ``cue`` (default the first), each episode's start event saying when the
+    habit and the planner were ready and which acted (each also passed to ``say``); where nothing is ready, one
+    step without movement, captioned with the guessed target and its outcome (the test classifies a guess by its
+    target and simulates no movement for it; ``default`` "still": a time-out); ``told``:
+    :attr:`TestPlan.told_value`."""
     import numpy as np
 
     from apac_mj.recording.recording import EpisodeRecorder
@@ -189,22 +201,27 @@ def record_trials(run_dir: str | Path, out: str | Path, prep_times_ms: tuple[flo
     from apac_mj.run.run_dir import config_dict
     from apac_mj.run.variants import label
 
-    plan = TestPlan(tuple(float(t) for t in prep_times_ms), 1, 1, seed, timing)
+    plan = TestPlan(tuple(float(t) for t in prep_times_ms), 1, 1, seed, timing, default, told)
     loaded, loop = fr.frozen_loop(run_dir)
     cfg, cues = loaded.cfg, loaded.spec.cues
     cue = cues.remapped[0] if cue is None else cue
     tested = fr.variants(cfg.agent, loop.arbitrator)
     variant = _checked_trial(run_dir, cfg, tested, variant or tested[-1], cue, cues.n, member)
-    c = fr.candidates(loop, cfg, variant, 1, timing)
-    H, S = fr.latencies(timing, np.random.default_rng(seed))
+    cues_searched = cues.n if fr.told_value(loop, told) else 0
+    c = fr.candidates(loop, cfg, variant, 1)
+    sched = fr.schedule(variant, cfg.agent, timing, loop.planner.max_iterations, loop.arbitrator, cues_searched)
+    rng = np.random.default_rng(seed)
+    H, S = fr.latencies(sched, timing.latency_sd_ms, rng)
+    guess = int(rng.integers(0, c.guess.shape[1])) if default == "guess" else None
     shown = f"cue {cue} ({'remapped' if cue in cues.remapped else 'unchanged'})"
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     with EpisodeRecorder(out.parent, out=out, member=member, config=config_dict(cfg)) as recorder, \
             loop.env.overridden(cue=cue, remapped=True):
         for i, t in enumerate(plan.prep_times_ms):
-            habit, k, recorder.note = _at_deadline(loop, cfg, c, t, float(H), float(S), member, cue,
-                                                   f"{label(variant, tested)}, {shown}", timing)
+            habit, k, recorder.note = _at_deadline(c, sched, t, float(H), float(S), member, cue,
+                                                   f"{label(variant, tested)}, {shown}", guess,
+                                                   kinds.get(cfg.agent.kind).label)
             recorder.title = f"trial {i + 1} of {len(plan.prep_times_ms)} (deadline {t:.0f} ms, {shown})"
             say(f"{recorder.title}: {recorder.note}")
             if k or habit:
@@ -227,23 +244,26 @@ def _checked_trial(run_dir: str | Path, cfg: TrainConfig, tested: tuple[str, ...
     return variant
 
 
-def _at_deadline(loop: EpisodeLoop, cfg: TrainConfig, c: Candidates, t: float, H: float, S: float, member: int,
-                 cue: int, what: str, timing: Timing) -> tuple[bool, int, str]:
+def _at_deadline(c: Candidates, sched: Schedule, t: float, H: float, S: float, member: int, cue: int, what: str,
+                 guess: int | None, kind: str) -> tuple[bool, int, str]:
     """What acts at the deadline ``t`` in the trial whose habit is ready at ``H`` and planner starts at ``S``:
-    the habit (True, 0), the planner with k iterations (False, k) or nothing (False, 0), and the caption."""
+    the habit (True, 0), the planner with k iterations (False, k) or nothing (False, 0: the ``guess``-ed cued
+    target, None: no movement), and the caption (``kind``: the kind's label)."""
     import numpy as np
 
     from apac_mj.run import forced_response as fr
+    from apac_mj.run.timing import OUTCOMES
 
-    kind, K, iteration = kinds.get(cfg.agent.kind), loop.planner.max_iterations, fr.iteration_ms(cfg.agent, timing)
+    K = len(sched.plan_ms)
     plan, habit, k = fr.choose(t, np.array(H), np.array(S), c.rule_habit[member, cue, 0],
-                               c.rule_iterations[member, cue, 0], c.rule_ms, kind.uses_habit, kind.uses_planner,
-                               iteration, K)
-    ready = int(fr.ready_iterations(t, np.array(S), iteration, K, kind.uses_planner))
-    who = (f"the planner acts ({int(k)} iteration(s))" if plan else "the habit acts" if habit
-           else "nothing is ready: no movement (a time-out)")
-    has_habit = f"habit ready at {H:.0f} ms" if kind.uses_habit else f"no habit ({kind.label} has none)"
-    has_plan = (f"planner from {S:.0f} ms ({ready} of {K} iteration(s) by the deadline)" if kind.uses_planner
-                else f"no planner ({kind.label} has none)")
+                               c.rule_iterations[member, cue, 0], sched)
+    ready = int(fr.ready_iterations(t, np.array(H), np.array(S), sched))
+    nothing = ("nothing is ready: no movement (a time-out)" if guess is None else
+               f"nothing is ready: a guess, target {guess} ({OUTCOMES[int(c.guess[cue, guess])]})")
+    who = f"the planner acts ({int(k)} iteration(s))" if plan else "the habit acts" if habit else nothing
+    has_habit = f"habit ready at {H:.0f} ms" if sched.uses_habit else f"no habit ({kind} has none)"
+    start = f"after the habit's rollout from {H:.0f} ms" if sched.after_habit else f"from {S:.0f} ms"
+    has_plan = (f"planner {start} ({ready} of {K} iteration(s) by the deadline)" if sched.uses_planner
+                else f"no planner ({kind} has none)")
     caption = f"deadline {t:.0f} ms: {who}; {has_habit}, {has_plan}; {what}"
     return bool(habit), int(k) if plan else 0, caption

@@ -94,6 +94,16 @@ PLANT_PATHS = (ARM_COMMANDED, HAND_FORCE, LOAD, HAND_FORCE_SIZE, f"{JOINT_VELOCI
                f"{JOINT_VELOCITY}/elbow")
 #: Length of the drawn hand force (cm per N).
 FORCE_CM_PER_N = 0.5
+# A task's trials (tasks with a [trials] table only; apac_mj.suite.trials):
+#: A channel trial's two walls, either side of the straight line to the target (CHANNEL_HALF_WIDTH cm off it).
+CHANNEL = "plane/trial/channel"
+#: A trial's markers: a cross at the hand's start on a catch trial (the field off), a cross on the target the go
+#: cue shows.
+TRIAL_MARKER = "plane/trial/marker"
+#: Entity paths a recording of a task with a [trials] table adds (its events name each trial and the go cue).
+TRIAL_PATHS = (CHANNEL, TRIAL_MARKER)
+#: How far the drawn channel walls lie either side of the line (cm): drawn, not felt (the channel is a spring).
+CHANNEL_HALF_WIDTH = 0.3
 
 #: Entity paths every recording holds (the forward-model arm, the state-estimate error and the arbitrator's
 #: inputs only where an agent acted).
@@ -105,7 +115,7 @@ ENTITY_PATHS = (
 PLAN_PATHS = (PLAN, PLAN_CANDIDATES, PLAN_ITERATIONS, DECISION_MS)
 #: Every entity path a recording may log (docs/recording.md lists each; the arbitrator's inputs are
 #: ``ARBITRATION_INPUTS/<name>``, the legend's swatches ``LEGEND/<n>``): the per-step ones, then the static ones.
-ALL_ENTITY_PATHS = (*ENTITY_PATHS, ARM_FORWARD_MODEL, ESTIMATE_ERROR, *PLANT_PATHS, *PLAN_PATHS,
+ALL_ENTITY_PATHS = (*ENTITY_PATHS, ARM_FORWARD_MODEL, ESTIMATE_ERROR, *PLANT_PATHS, *PLAN_PATHS, *TRIAL_PATHS,
                     PLANE, BORDER, SHOULDER, LEGEND_BACKGROUND)
 
 #: Chunk batching of the file sink: flush after this many seconds or bytes (or at close).
@@ -241,6 +251,7 @@ INPUT_UNITS = {
     "time_if_habit": "steps", "time_if_planning": "steps", "planning_gain": "steps", "planning_extra_cost": "steps",
     "habit_value": "value (reward units)", "expected_gain": "value (reward units)",
     "planning_cost": "value (reward units)", "iterations": "iterations", "vision": "vision (1 seen, 0 not)",
+    "explored": "re-explored (1 yes, 0 no)",
 }
 #: The legend of the plane view: (entity path, name); a recording shows the entries it drew.
 LEGEND_ENTRIES = (
@@ -421,6 +432,7 @@ class Recording:
         #: Entities drawn so far, and the arbitrator's inputs in the order they first came (for the blueprint).
         self._drawn: set[str] = set()
         self._inputs: dict[str, None] = {}
+        self._trial_styled = False  # the trials' strip styles logged (at the first trial: log_trial)
         self._stream.send_recording_name(name)
         self._send_properties(config or {})
         self._log_static()
@@ -478,6 +490,33 @@ class Recording:
         extra = f" {note}" if note else ""
         self.event(episode, 0, f"{title or f'episode {episode}'} starts: target ({target[0]:.2f}, {target[1]:.2f}) cm, "
                                f"lengths l1={l1:.3f} l2={l2:.3f} cm{extra}")
+
+    def log_trial(self, episode: int, step: int, view: dict[str, Any] | None) -> None:
+        """A ``[trials]`` task's trial at (episode, step) (``view``: ``suite.trials.TrialRunner.view``; None: no
+        table): the channel's walls on a channel trial; at step 0 an event naming the trial and a cross at the hand's
+        start on a catch trial; at the go cue an event and a cross on the target it shows."""
+        if view is None:
+            return
+        if not self._trial_styled:
+            for path, (color, radius, order) in _TRIAL_STYLES.items():
+                self._stream.log(path, rr.LineStrips2D.from_fields(colors=[color], radii=[radius], draw_order=order),
+                                 static=True)
+            self._trial_styled = True
+        if step == 0:  # the last trial's walls and markers go
+            for path in TRIAL_PATHS:
+                self._stream.log(path, rr.Clear(recursive=False))
+            self.event(episode, 0, f"{view['type']} trial in block {view['block']!r} "
+                                   f"(curl field b = {view['field_b']:g} N·s/m)")
+            if view["type"] == "catch":
+                self._buffer(TRIAL_MARKER, episode, 0, _cross(view["start"]))
+        if view["channel"] is not None:
+            a, t, n = view["channel"]
+            self._buffer(CHANNEL, episode, step, [np.stack([a + side * n, t + side * n])
+                                                   for side in (CHANNEL_HALF_WIDTH, -CHANNEL_HALF_WIDTH)])
+        if view["go_cue_step"] and step == view["go_cue_step"]:
+            t = view["target"]
+            self.event(episode, step, f"go cue: the target shown at ({t[0]:.2f}, {t[1]:.2f}) cm")
+            self._buffer(TRIAL_MARKER, episode, step, _cross(t))
 
     def event(self, episode: int, step: int, text: str, level: str = "INFO") -> None:
         """A text event at (episode, step) and the current frame."""
@@ -685,7 +724,7 @@ def _columns(path: str, payload: list[Any]) -> Any:
     if path == EVENTS:
         text, level = zip(*payload)
         return rr.TextLog.columns(text=list(text), level=list(level))
-    if path in _STRIP_STYLES:
+    if path in _STRIP_STYLES or path in _TRIAL_STYLES:
         strips = [strip for row in payload for strip in row]
         if strips and len({strip.shape for strip in strips}) == 1:
             # equal-length strips (arms, dashes) as one [n, points, 2] array: the SDK's fast path
@@ -693,6 +732,17 @@ def _columns(path: str, payload: list[Any]) -> Any:
             strips = np.stack(strips).astype(np.float32)
         return rr.LineStrips2D.columns(strips=strips).partition([len(row) for row in payload])
     return rr.Scalars.columns(scalars=np.asarray(payload, dtype=np.float64))
+
+
+#: The trials' strips (:data:`TRIAL_PATHS`): styled when a recording first draws a trial, so that a recording of a
+#: task without a ``[trials]`` table holds none of them.
+_TRIAL_STYLES = {CHANNEL: ((90, 90, 90), 0.08, 12.0), TRIAL_MARKER: ((0, 150, 150), 0.1, 24.0)}
+
+
+def _cross(xy: Sequence[float], size: float = 0.4) -> list[np.ndarray]:
+    """Two strokes crossing at ``xy`` (cm), ``size`` long each."""
+    x, y, h = float(xy[0]), float(xy[1]), size / 2.0
+    return [np.array([[x - h, y - h], [x + h, y + h]]), np.array([[x - h, y + h], [x + h, y - h]])]
 
 
 def _flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
@@ -877,6 +927,7 @@ class EpisodeRecorder(Hook):
         rec.step += 1  # StepInfo counts the step at which the action was taken; the record, the arm after it
         if self._start is not None:
             self._open_episode(rec.episode, vec_env)
+        self._recording.log_trial(rec.episode, rec.step, vec_env.trial_view(m))
         self._log(rec, self._render(vec_env.physics(m)))
         if rec.done:
             self._recording_episode = False
@@ -916,6 +967,7 @@ class EpisodeRecorder(Hook):
         self._recording.start_episode(episode, start.target, start.link_lengths, note=note, title=self.title)
         if self.note:
             self._recording.event(episode, 0, self.note)
+        self._recording.log_trial(episode, 0, vec_env.trial_view(self.member))
         self._log(start, frame)
 
     def _log(self, rec: StepRecord, frame: np.ndarray) -> None:

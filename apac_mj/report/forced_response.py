@@ -6,6 +6,7 @@ Per seed, cues of one type (remapped, unchanged) are pooled; intervals are 95% b
 """
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 from typing import Sequence
 
@@ -62,7 +63,7 @@ def check_table(df: pd.DataFrame, path: Path, practice: int) -> None:
         raise TestTableError(f"{path}: {problem}{where}; the table was damaged or edited: remove it and run its "
                              "test again (apac-mj forced-response run --out STUDY resumes it); nothing was written")
 
-    missing = [c for c in COLUMNS if c != "episode" and c not in df.columns]
+    missing = [c for c in COLUMNS if c not in ("episode", "guessed") and c not in df.columns]  # absent before them
     if missing:
         refuse(f"missing column(s) {missing}")
     if df.empty:
@@ -157,6 +158,90 @@ def peaks(seeds: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+#: The human curves' window (scripts/hardwick_human.py): centres every 25 ms from 50 to 1200 ms, 100 ms wide.
+WINDOW_CENTRES_MS, WINDOW_MS = np.arange(50, 1201, 25), 100.0
+#: Keys a guess picks among: the cued task's four targets, as the humans' four keys.
+KEYS = 4
+#: The humans' fits of Hardwick et al.'s model (scripts/hardwick_human.py --fits), from the checkout's root.
+HUMAN_FITS = "docs/results/forced_response/human/hardwick_fits.csv"
+#: The human groups the agents are set beside (minimal practice has no habit to express).
+HUMAN_GROUPS = ("4day", "20day")
+#: The timing model the shipped tables (docs/results/forced_response/) were made under.
+SHIPPED_TIMING = "the timing model of commit 0d4545c"
+
+
+def remapped_counts(g: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
+    """Preparation times (s) and (n, 3) counts of correct, habitual, other responses of the remapped cues of
+    ``g`` (one seed, rows per preparation time), time-outs counted as guesses among :data:`KEYS` keys (people
+    must respond; :func:`apac_mj.report.hardwick.guesses`)."""
+    from apac_mj.report import hardwick
+
+    rem = g[g.remapped.astype(bool)].groupby("prep_ms")[["correct", "habitual", "other", "timeout"]].sum()
+    rem = rem.sort_index()
+    counts = hardwick.guesses(rem[["correct", "habitual", "other"]].to_numpy(float), rem["timeout"].to_numpy(float),
+                              KEYS)
+    return rem.index.to_numpy(dtype=float) / 1000.0, counts
+
+
+def hardwick_fits(seeds: pd.DataFrame) -> pd.DataFrame:
+    """Hardwick et al.'s habit and no-habit models fitted to each seed's remapped-cue counts (per practice and
+    variant; :func:`remapped_counts`): one :func:`apac_mj.report.hardwick.fit_row` per seed (times in ms)."""
+    from apac_mj.report import hardwick
+
+    rows = []
+    for (practice, variant, seed), g in seeds.groupby(["practice", "variant", "seed"]):
+        t, counts = remapped_counts(g)
+        rows.append({"practice": practice, "variant": variant, "seed": seed, **hardwick.fit_row(t, counts)})
+    return pd.DataFrame(rows)
+
+
+def window_peaks(seeds: pd.DataFrame) -> pd.DataFrame:
+    """The humans' analysis on the agents' remapped-cue trials (time-outs as guesses): per seed the 100 ms
+    sliding window of P(habitual) on the humans' grid (:data:`WINDOW_CENTRES_MS`), then per practice and variant
+    where the mean over seeds peaks (the mean of tied centres: on a 50 ms test grid two centres hold the same
+    tests), its height with the report's interval there, and the mean at 50-150 ms."""
+    from apac_mj.report import hardwick
+    from apac_mj.report.stats import seed_interval
+
+    rows = []
+    for (practice, variant), g in seeds.groupby(["practice", "variant"]):
+        cur = []
+        for _, s in g.groupby("seed"):
+            t, counts = remapped_counts(s)
+            cur.append(hardwick.sliding_window(t * 1000.0, counts, WINDOW_CENTRES_MS, WINDOW_MS)[1])
+        cur = np.asarray(cur)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # windows without a test are NaN for every seed
+            mean = np.nanmean(cur, axis=0)
+        if not np.isfinite(mean).any():
+            continue
+        j = int(np.nanargmax(mean))
+        tied = WINDOW_CENTRES_MS[np.isclose(mean, mean[j], rtol=0, atol=1e-12)]  # windows holding the same tests
+        lo, hi = seed_interval(cur[:, j], (0.0, 1.0))
+        short = (WINDOW_CENTRES_MS >= 50) & (WINDOW_CENTRES_MS <= 150)
+        rows.append({"practice": practice, "variant": variant, "seeds": len(cur),
+                     "window_peak_ms": float(tied.mean()), "window_peak": float(mean[j]),
+                     "window_peak_lo": lo, "window_peak_hi": hi,
+                     "window_50_150": float(np.nanmean(mean[short])) if np.isfinite(mean[short]).any() else np.nan})
+    return pd.DataFrame(rows)
+
+
+def curves_as_counts(curve: pd.DataFrame, trials: int) -> pd.DataFrame:
+    """A :func:`per_seed`-like table with one pseudo-seed (``"pooled"``) per practice, variant, cue type and time
+    from a published ``curves.csv`` (means over ``seeds``): counts = mean rate × seeds × ``trials`` per seed,
+    for reports made before the per-seed tables were shipped; the fits of it are the seed-pooled agent's."""
+    rate = curve[["correct", "habitual", "other", "timeout"]].to_numpy(float)
+    n = curve["seeds"].to_numpy(float)[:, None] * trials
+    counts = np.round(rate * n)
+    if np.abs(rate * n - counts).max() > 0.25:  # 4-decimal rates of a few thousand trials are within 0.25
+        raise ValueError(f"curves.csv: rates x seeds x {trials} trials are not counts; give the trials per seed, "
+                         "cue type and time the test ran")
+    out = curve[["practice", "variant", "remapped", "prep_ms"]].copy()
+    out["seed"] = "pooled"
+    out[["correct", "habitual", "other", "timeout"]] = counts
+    return out
+
+
 def t50(p_correct: pd.Series) -> float:
     """The preparation time (ms; linear between tested times) where the mean P(correct), indexed by time,
     first reaches 0.5 (the human summary's ``t50_correct_*``); NaN if it never does."""
@@ -240,6 +325,25 @@ def write_report(study: str | Path, human: str | Path | None = None, out: str | 
     curve, peak = curves(seeds), peaks(seeds)
     curve.round(4).to_csv(out / "curves.csv", index=False)
     peak.round(4).to_csv(out / "peaks.csv", index=False)
+    write_hardwick(seeds, out, paths.repo_root() / HUMAN_FITS)
     human = Path(human) if human else paths.repo_root() / "docs/results/forced_response/human/human_curves.csv"
     figure(curve, out / "forced_response.png", pd.read_csv(human) if human.is_file() else None)
     return out
+
+
+def write_hardwick(seeds: pd.DataFrame, out: str | Path, human: str | Path | None = None) -> None:
+    """Hardwick et al.'s model per seed (``hardwick_fits.csv``), its summary per practice and variant with the
+    report's intervals (``hardwick.csv``), the humans' windowed peaks of the agents (``window_peaks.csv``) and,
+    given the humans' fits (``human``: scripts/hardwick_human.py's ``hardwick_fits.csv``), both side by side
+    (``hardwick_vs_humans.csv``, :func:`apac_mj.report.hardwick.side_by_side`)."""
+    from apac_mj.report import hardwick
+
+    fits = hardwick_fits(seeds)
+    fits.round(6).to_csv(Path(out) / "hardwick_fits.csv", index=False)
+    summary = hardwick.summarize(fits, ["practice", "variant"])
+    summary.round(4).to_csv(Path(out) / "hardwick.csv", index=False)
+    window_peaks(seeds).round(4).to_csv(Path(out) / "window_peaks.csv", index=False)
+    if human is not None and Path(human).is_file():
+        humans = pd.read_csv(human)
+        humans = humans[humans.condition.isin(HUMAN_GROUPS)]
+        hardwick.side_by_side(summary, humans).round(4).to_csv(Path(out) / "hardwick_vs_humans.csv", index=False)

@@ -31,6 +31,7 @@ from typing import Any, Sequence
 
 from apac_mj import kinds, systems
 from apac_mj.agent.agent import Agent
+from apac_mj.agent.arbitrators import held_out_dynamics
 from apac_mj.config import AgentConfig, TrainConfig
 from apac_mj.kinds import arbitrator_for, check as check_kind
 from apac_mj.kinematics import Geometry
@@ -48,6 +49,9 @@ from apac_mj.util.files import jsonable
 #: TaskSpec fields that only name and colour a task (``name`` is the config's ``task``): a run's task record
 #: leaves them out, so that a new label or description does not stop a run from resuming.
 _NOT_TRAINED = ("name", "description", "report_label", "report_short", "report_color")
+#: Optional TaskSpec tables added after runs and zoo cells were written: left out of a task record while absent
+#: (None), so that a run or a shipped cell written before them keeps its task digest and its contract.
+OPTIONAL_TABLES = ("signals", "trials", "deliberation")
 #: Floats one replay transition holds per member (s, a, r, s', done, executed a, spare: the Agent's replay).
 _FLOATS_PER_TRANSITION = 4 + 2 + 1 + 4 + 1 + 2 + 4
 
@@ -139,6 +143,8 @@ def make_agent(cfg: TrainConfig, spec: TaskSpec, sizes: Sizes, device: str | Non
     """The run's agent (fresh networks) for ``spec``'s geometry and the environments' ``sizes``; on ``device``
     in ``precision`` (default: the run's)."""
     dynamics = cfg.agent.params[MPCParams.table] if planner_kind(cfg.agent).model else None
+    if dynamics is not None:  # the graded rule's held-out head (voc.gain = "heldout")
+        dynamics = held_out_dynamics(arbitrator_for(cfg.agent), dynamics)
     return Agent(cfg.agent, list(cfg.seeds), device=cfg.device if device is None else device,
                  precision=precision or cfg.precision, geometry=Geometry.from_spec(spec), sizes=sizes,
                  dynamics=dynamics)
@@ -214,7 +220,8 @@ def task_record(cfg: TrainConfig, spec: TaskSpec) -> TaskRecord:
     """``spec`` (``cfg``'s task resolved: :func:`apac_mj.suite.spec_for`) as a run records it: every field that
     changes what is trained, in JSON form, and where it was read."""
     def trained(s: TaskSpec) -> dict[str, Any]:
-        return {k: v for k, v in jsonable(dataclasses.asdict(s)).items() if k not in _NOT_TRAINED}
+        return {k: v for k, v in jsonable(dataclasses.asdict(s)).items()
+                if k not in _NOT_TRAINED and not (k in OPTIONAL_TABLES and v is None)}
 
     file = paths.tasks_dir() / f"{cfg.task}.toml"
     return TaskRecord(trained(spec), f"task file {file}" if file.is_file() else

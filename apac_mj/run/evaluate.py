@@ -232,10 +232,12 @@ def _row(env: VecEnv, k: int, index: int, st: EpisodeState, path: list[list[np.n
 
 
 def reached(env: VecEnv, k: int, distance: float, zone_radius: float, stop_speed: float | None) -> bool:
-    """Member ``k`` ended where its task counts the target reached: within ``zone_radius`` of it and, on a stop
-    task (``stop_speed`` deg/s), with every joint at most that fast. The task's own zone is not read: the
-    occluded protocol runs the environment with an unreachable one."""
-    return bool(distance <= zone_radius and (stop_speed is None or env.stopped(stop_speed)[k]))
+    """Member ``k`` ended where its task counts the target reached: within ``zone_radius`` of it, on a stop
+    task (``stop_speed`` deg/s) with every joint at most that fast, and where the world does not wait
+    (``[deliberation]``) by the deadline. The task's own zone is not read: the occluded protocol runs the
+    environment with an unreachable one."""
+    return bool(distance <= zone_radius and (stop_speed is None or env.stopped(stop_speed)[k])
+                and env.in_time()[k])
 
 
 def time_cost(habit_actions: int, planning_actions: int) -> int:

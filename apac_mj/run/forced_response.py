@@ -2,29 +2,31 @@
 respond at a deadline (the allowed preparation time) with whatever its controllers have ready by then.
 
 A trial shows one cue at ``t = 0``; the arm must launch its movement at the deadline ``T`` (ms, simulated time;
-docs/forced_response.md). The two systems prepare in parallel from the cue:
+docs/forced_response.md). When each computation is ready follows from what it computes (:mod:`apac_mj.run.timing`:
+network passes at measured prices after the cue's perception; :class:`Schedule`):
 
-* the habit's proposal (one pass of the actor) is ready at ``H ~ N(habit_latency_ms, latency_sd_ms)``;
-* the planner starts at ``S ~ N(planning_latency_ms, latency_sd_ms)`` and finishes an iteration every
-  ``inverse_pass_ms`` (the paper's inverse model: one iteration) or ``mpc_iteration_ms`` (the anytime planner
-  through the learned model: its best plan after each iteration); at ``T`` it has ``k = floor((T - S) / d)``
-  iterations (at most its maximum);
-* the arbitrator's inputs are ready ``rule_ms`` after the habit: none for the paper's delta rule (it reads the
-  last transition's delta, which the first decision of a trial does not have: the habit acts on the first
-  steps, ``habit_first_steps``), one forward-model pass for the delta of the habit's imagined transition
-  (the kind's name and ``_imagined``, :mod:`apac_mj.run.variants`), the habit's sequence through the model (``horizon`` passes) for the graded rule.
+* the habit's proposal (one actor pass) is ready at ``H = perception + actor pass + e_h``;
+* the arbitrator's inputs ``rule_ms`` after the habit: none for the paper's delta rule (it reads the last
+  transition's delta, which the first decision of a trial does not have: the habit acts on the first steps,
+  ``habit_first_steps``), :data:`~apac_mj.run.timing.IMAGINED_DELTA`'s passes for the delta of the habit's
+  imagined transition, the rest of the habit's rollout (the probe) for the graded rule;
+* a plan of ``k`` iterations: the MPC planner's after the habit (its pool holds the habit's sequence: the
+  rollout the probe is, then ``k`` iterations of ``candidates`` sequences); the paper's inverse model ``k``
+  passes after ``S = perception + e_s``. ``e_h``, ``e_s`` ~ N(0, ``latency_sd_ms``), drawn per trial.
 
 At the deadline the arm acts by what is ready: the arbitrator's choice where its inputs are ready (a plan only
 with at least one finished iteration, cut to the iterations done), else the habit where it is ready, else the
-plan where one is ready, else the default: **no movement** (a time-out). The controller chosen at the deadline is
+plan where one is ready, else the default: **a guess**, a uniformly drawn one of the cued targets (as people
+are forced to; ``TestPlan.default = "still"``: no movement, a time-out). The controller chosen at the deadline is
 committed to: it drives the whole movement (the episode's steps; the planner with the iterations it had), and the
 response is classified by where the hand ends: at the cued target (correct), at the remapped cue's old target (a
-habitual error), elsewhere (another error), or where it started (a time-out).
+habitual error), elsewhere (another error), or where it started (a time-out). A guess is classified by the target
+it aims at.
 
 What a trial computes is separated from when it is ready: :func:`candidates` runs the frozen agent once per
 cue and repeat (the rule's decision at the first step; the movement of the habit and of the plan at each
-iteration count, executed in MuJoCo from the start pose); :func:`simulate` then draws the latencies of many trials per
-preparation time and picks each trial's candidate. Same seed, same numbers.
+iteration count, executed in MuJoCo from the start pose); :func:`simulate` then draws the latencies (and
+guesses) of many trials per preparation time and picks each trial's candidate. Same seed, same numbers.
 """
 from __future__ import annotations
 
@@ -42,7 +44,8 @@ from apac_mj.rules import MPCParams
 from apac_mj.run.build import LoadedRun, episode_loop, load_run
 from apac_mj.run.rollout import EpisodeLoop, Hook
 from apac_mj.run.run_dir import RunDir, say
-from apac_mj.run.timing import ACTORS, COLUMNS, OUTCOMES, TestPlan, Timing
+from apac_mj.run.timing import (ACTORS, COLUMNS, HABIT, IMAGINED_DELTA, OUTCOMES, TestPlan, Timing, decision_ms,
+                                probe_counts)
 from apac_mj.run.variants import IMAGINED
 from apac_mj.suite.task_spec import Cues
 from apac_mj.types import END, TARGET, ArbitrationContext, Arbitrator, Decision, WorldModel
@@ -72,8 +75,27 @@ class Candidates:
     default: np.ndarray        # no movement
     rule_habit: np.ndarray     # bool: the rule (with its inputs ready) lets the habit act
     rule_iterations: np.ndarray  # the iterations the rule grants a plan (K: the planner's maximum)
-    rule_ms: float             # how long after the habit the rule's inputs are ready
     hand: dict[str, np.ndarray]  # "habit" [E, cues, repeats, 2], "plan" [..., K, 2]: the hand after the movement
+    guess: np.ndarray          # [cues, targets]: the outcome of a guess of each cued target
+
+
+@dataclasses.dataclass(frozen=True)
+class Schedule:
+    """When a variant's computations are ready in a trial (ms; :func:`schedule`)."""
+
+    #: Mean time from the cue until the habit's proposal is ready.
+    habit_ms: float
+    #: Mean time from the cue until a planner that does not wait for the habit starts (the cue's perception).
+    start_ms: float
+    #: After the habit, when the rule's inputs are ready.
+    rule_ms: float
+    #: ``[K]``: when a plan of 1..K iterations is done, from the habit (``after_habit``) or from the start.
+    plan_ms: np.ndarray
+    #: The plan needs the habit's rollout (the MPC planner's pool holds the habit's sequence).
+    after_habit: bool
+    #: The kind has a habit / a planner.
+    uses_habit: bool = True
+    uses_planner: bool = True
 
 
 def classify(hand: np.ndarray, start: np.ndarray, targets_now: np.ndarray, targets_before: np.ndarray,
@@ -102,29 +124,41 @@ def imagined_delta(agent: WorldModel, state: torch.Tensor, action: torch.Tensor,
     return agent.td_error(state, executable, -distance, nxt, (distance <= zone_radius).float())
 
 
-def rule_ms(variant: str, cfg_agent: AgentConfig, timing: Timing, arbitrator: Arbitrator | None = None) -> float:
-    """How long after the habit's proposal the rule of ``variant`` has its inputs: the imagined transition's
-    delta one forward-model pass, a rule reading the habit's probe ``agent.mpc.horizon`` of them; the other
-    rules none. ``arbitrator``: the kind's, if built already."""
+def rule_ms(variant: str, cfg_agent: AgentConfig, timing: Timing, arbitrator: Arbitrator | None = None,
+            cues: int = 0) -> float:
+    """How long after the habit's proposal the rule of ``variant`` has its inputs (:func:`decision_ms`): the
+    imagined transition's delta :data:`IMAGINED_DELTA`'s passes, a rule reading the habit's probe the rest of
+    the habit's rollout (:func:`probe_counts` less the habit's pass; ``cues``: with the told value's cue
+    search); the other rules none. ``arbitrator``: the kind's, if built already."""
     if variant != cfg_agent.kind and variant.endswith(IMAGINED):
-        return timing.model_pass_ms
+        return decision_ms(IMAGINED_DELTA, timing)
     arbitrator = kinds.arbitrator_for(cfg_agent) if arbitrator is None else arbitrator
     if arbitrator.needs_habit_probe:
-        return timing.model_pass_ms * cfg_agent.params[MPCParams.table].horizon
+        return decision_ms(probe_counts(cfg_agent.params[MPCParams.table].horizon, cues) - HABIT, timing)
     return 0.0
 
 
-def iteration_ms(cfg_agent: AgentConfig, timing: Timing) -> float:
-    """One planning iteration's duration for the kind's planner (:meth:`Timing.iteration`)."""
-    return timing.iteration(kinds.get(cfg_agent.kind).planner)
+def schedule(variant: str, cfg_agent: AgentConfig, timing: Timing, K: int, arbitrator: Arbitrator | None = None,
+             cues: int = 0) -> Schedule:
+    """When ``variant``'s habit, rule and plans of 1..``K`` iterations are ready (:class:`Schedule`), from the
+    counts of what each computes at ``timing``'s prices. ``arbitrator``: the kind's, if built already; ``cues``:
+    the cued task's cues where the MPC planner finds the told target's cue (0: it does not)."""
+    kind = kinds.get(cfg_agent.kind)
+    mpc = kind.planner == "mpc"
+    params = cfg_agent.params.get(MPCParams.table) if mpc else None
+    plan_ms, after_habit = timing.plan_ms(kind.planner, params, K, cues if mpc else 0)
+    return Schedule(timing.habit_ms(), timing.perception_ms,
+                    rule_ms(variant, cfg_agent, timing, arbitrator, cues if mpc else 0), plan_ms, after_habit,
+                    kind.uses_habit, kind.uses_planner)
 
 
-def ready_iterations(t: float, S: np.ndarray, iteration: float, K: int, uses_planner: bool) -> np.ndarray:
-    """The planning iterations finished by the deadline ``t`` (ms) by planners that started at ``S``, each
-    ``iteration`` ms long (at most ``K``; none for a kind without a planner)."""
-    if not uses_planner:
+def ready_iterations(t: float, H: np.ndarray, S: np.ndarray, sched: Schedule) -> np.ndarray:
+    """The planning iterations finished by the deadline ``t`` (ms) in trials whose habit is ready at ``H`` and
+    planner starts at ``S`` (at most ``K``; none for a kind without a planner)."""
+    if not sched.uses_planner:
         return np.zeros(np.shape(S), int)
-    return np.clip(np.floor((t - S) / iteration), 0, K).astype(int)
+    since = t - (H if sched.after_habit else S)
+    return np.searchsorted(sched.plan_ms, since, side="right").astype(int)
 
 
 class Committed(Arbitrator):
@@ -138,11 +172,11 @@ class Committed(Arbitrator):
         return Decision(torch.full((ctx.E,), self.habit), {}, torch.full((ctx.E,), self.iterations))
 
 
-def candidates(loop: EpisodeLoop, cfg: TrainConfig, variant: str, repeats: int, timing: Timing) -> Candidates:
+def candidates(loop: EpisodeLoop, cfg: TrainConfig, variant: str, repeats: int) -> Candidates:
     """Run the frozen agent of ``loop`` (:func:`frozen_loop`: a cued task's environments) ``repeats`` times per
     cue under the remapped mapping: the rule's decision at the trial's first step, and the movement each
     candidate makes when committed to (the habit; the plan with k = 1..K iterations per step), executed in MuJoCo
-    to the episode's end; each classified by where the hand ended."""
+    to the episode's end; each classified by where the hand ended; and a guess's outcome for every cue and target."""
     cues, E, K = loop.env.spec.cues, loop.env.E, loop.planner.max_iterations
     targets = cues.mapping(True), cues.mapping(False)  # now (remapped) and before: fixed for the whole test
     shape = (E, cues.n, repeats)
@@ -155,8 +189,20 @@ def candidates(loop: EpisodeLoop, cfg: TrainConfig, variant: str, repeats: int, 
                 for name, value in _trial(loop, cfg, variant, c, targets).items():
                     out[name][:, c, r] = value
     return Candidates(out["habit"], out["plan"], np.full(shape, OUTCOMES.index("timeout")), out["rule_habit"],
-                      out["rule_iterations"], rule_ms(variant, cfg.agent, timing, loop.arbitrator),
-                      {"habit": out["hand_habit"], "plan": out["hand_plan"]})
+                      out["rule_iterations"], {"habit": out["hand_habit"], "plan": out["hand_plan"]},
+                      guesses(cues.mapping(True), cues.mapping(False)))
+
+
+def guesses(targets_now: np.ndarray, targets_before: np.ndarray) -> np.ndarray:
+    """``[cues, targets]``: the outcome of guessing each cued target (:data:`OUTCOMES`) for each cue: correct at
+    the cue's target now, habitual at a remapped cue's target before, else other."""
+    n = len(targets_now)
+    out = np.full((n, n), OUTCOMES.index("other"))
+    for c in range(n):
+        if not np.allclose(targets_now[c], targets_before[c]):
+            out[c, np.all(np.isclose(targets_now, targets_before[c]), axis=-1)] = OUTCOMES.index("habitual")
+        out[c, np.all(np.isclose(targets_now, targets_now[c]), axis=-1)] = OUTCOMES.index("correct")
+    return out
 
 
 def _trial(loop: EpisodeLoop, cfg: TrainConfig, variant: str, cue: int,
@@ -214,49 +260,55 @@ def _response_radius(targets: np.ndarray) -> float:
 
 
 def choose(t: float, H: np.ndarray, S: np.ndarray, rule_habit: np.ndarray, rule_iterations: np.ndarray,
-           rule_ms: float, uses_habit: bool, uses_planner: bool, iteration: float,
-           K: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+           sched: Schedule) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """What acts at deadline ``t`` (ms) in trials whose habit is ready at ``H`` and planner starts at ``S``:
-    masks ``plan`` and ``habit`` (neither: the default, no movement) and the plan's iterations ``k``."""
-    habit_ready = (H <= t) & uses_habit
-    k_ready = ready_iterations(t, S, iteration, K, uses_planner)
-    rule_ready = habit_ready & (H + rule_ms <= t)
+    masks ``plan`` and ``habit`` (neither: the default) and the plan's iterations ``k``."""
+    K = len(sched.plan_ms)
+    habit_ready = (H <= t) & sched.uses_habit
+    k_ready = ready_iterations(t, H, S, sched)
+    rule_ready = habit_ready & (H + sched.rule_ms <= t)
     plan = (k_ready >= 1) & ((rule_ready & ~rule_habit) | ~habit_ready)
     habit = ~plan & habit_ready
     return plan, habit, np.clip(np.minimum(k_ready, rule_iterations), 1, K)
 
 
-def latencies(timing: Timing, rng: np.random.Generator, shape: tuple[int, ...] = ()) -> tuple[np.ndarray, np.ndarray]:
-    """Draws of when the habit is ready (``H``) and the planner starts (``S``), ms, cut at 0."""
-    H = np.maximum(rng.normal(timing.habit_latency_ms, timing.latency_sd_ms, shape), 0.0)
-    S = np.maximum(rng.normal(timing.planning_latency_ms, timing.latency_sd_ms, shape), 0.0)
+def latencies(sched: Schedule, sd: float, rng: np.random.Generator,
+              shape: tuple[int, ...] = ()) -> tuple[np.ndarray, np.ndarray]:
+    """Draws of when the habit is ready (``H``) and a planner that does not wait for it starts (``S``), ms, each
+    with its own N(0, ``sd``) noise, cut at 0."""
+    H = np.maximum(sched.habit_ms + rng.normal(0.0, sd, shape), 0.0)
+    S = np.maximum(sched.start_ms + rng.normal(0.0, sd, shape), 0.0)
     return H, S
 
 
-def simulate(c: Candidates, timing: Timing, prep_times_ms: Sequence[float], trials: int, seed: int,
-             uses_habit: bool, uses_planner: bool, iteration: float) -> dict[str, np.ndarray]:
+def simulate(c: Candidates, sched: Schedule, sd: float, prep_times_ms: Sequence[float], trials: int, seed: int,
+             default: str = "guess") -> dict[str, np.ndarray]:
     """``trials`` trials per member, cue and preparation time (checked by the caller: :class:`TestPlan`): each
-    draws its latencies and a repeat of the candidates, and acts by what is ready at the deadline. Returns counts
-    ``outcomes`` ``[E, cues, T, 4]`` (:data:`OUTCOMES`) and ``acted`` ``[E, cues, T, 3]`` (:data:`ACTORS`)."""
+    draws its latencies, a repeat of the candidates and a guessed target, and acts by what is ready at the
+    deadline (neither: the ``default``, "guess" or "still"). Returns counts ``outcomes`` ``[E, cues, T, 4]``
+    (:data:`OUTCOMES`), ``acted`` ``[E, cues, T, 3]`` (:data:`ACTORS`) and ``guessed`` ``[E, cues, T]``."""
     T = np.asarray(prep_times_ms, dtype=np.float64).ravel()
     rng = np.random.default_rng(seed)
     E, n, R = c.habit.shape
-    K = c.plan.shape[-1]
     outcomes, acted = np.zeros((E, n, len(T), len(OUTCOMES)), int), np.zeros((E, n, len(T), len(ACTORS)), int)
+    guessed = np.zeros((E, n, len(T)), int)
+    cue = np.arange(n)[None, :, None]
     for i, t in enumerate(T):
         shape = (E, n, trials)
-        H, S = latencies(timing, rng, shape)
+        H, S = latencies(sched, sd, rng, shape)
         r = rng.integers(0, R, shape)
+        g = rng.integers(0, c.guess.shape[1], shape)
         pick = lambda a: np.take_along_axis(a, r, axis=2)  # noqa: E731
-        plan, habit, k = choose(t, H, S, pick(c.rule_habit), pick(c.rule_iterations), c.rule_ms, uses_habit,
-                                uses_planner, iteration, K)
+        plan, habit, k = choose(t, H, S, pick(c.rule_habit), pick(c.rule_iterations), sched)
         plan_out = np.take_along_axis(np.take_along_axis(c.plan, r[..., None], axis=2), (k - 1)[..., None], 3)[..., 0]
-        outcome = np.where(plan, plan_out, np.where(habit, pick(c.habit), OUTCOMES.index("timeout")))
+        neither = c.guess[cue, g] if default == "guess" else OUTCOMES.index("timeout")
+        outcome = np.where(plan, plan_out, np.where(habit, pick(c.habit), neither))
         for j in range(len(OUTCOMES)):
             outcomes[:, :, i, j] = (outcome == j).sum(-1)
         for j, who in enumerate((habit, plan, ~(habit | plan))):
             acted[:, :, i, j] = who.sum(-1)
-    return {"outcomes": outcomes, "acted": acted}
+        guessed[:, :, i] = acted[:, :, i, 2] if default == "guess" else 0
+    return {"outcomes": outcomes, "acted": acted, "guessed": guessed}
 
 
 def frozen_loop(run_dir: str | Path, device: str | None = None,
@@ -306,13 +358,14 @@ def networks_episode(loaded: LoadedRun) -> int:
 
 def test_run(run_dir: str | Path, prep_times_ms: Sequence[float], timing: Timing = Timing(), trials: int = 100,
              repeats: int = 3, seed: int = 0, device: str | None = None,
-             expect_episodes: int | None = None) -> pd.DataFrame:
+             expect_episodes: int | None = None, default: str = "guess", told: bool = False) -> pd.DataFrame:
     """The forced-response test of a trained run on a cued task (frozen, the remapped mapping): a table of
     outcome counts (:data:`COLUMNS`; ``episode``: each seed's networks' training episodes) for each of the kind's
     :func:`variants`. Settings are checked before the run is loaded. ``expect_episodes``: the networks must be
-    from that episode (a study's practice length), else a RuntimeError (nothing written)."""
+    from that episode (a study's practice length), else a RuntimeError (nothing written). ``default``: the
+    response when nothing is ready (:attr:`TestPlan.default`); ``told``: :attr:`TestPlan.told_value`."""
     plan = TestPlan(tuple(float(t) for t in np.asarray(prep_times_ms, dtype=float).ravel()), trials, repeats,
-                    seed, timing)
+                    seed, timing, default, told)
     loaded, loop = frozen_loop(run_dir, device)
     episode = networks_episode(loaded)
     if expect_episodes is not None and episode != expect_episodes:
@@ -331,10 +384,22 @@ def test_run(run_dir: str | Path, prep_times_ms: Sequence[float], timing: Timing
 
 def _counts(loop: EpisodeLoop, cfg: TrainConfig, variant: str, plan: TestPlan) -> dict[str, np.ndarray]:
     """:func:`simulate` over the candidates of ``variant``."""
-    kind = kinds.get(cfg.agent.kind)
-    c = candidates(loop, cfg, variant, plan.repeats, plan.timing)
-    return simulate(c, plan.timing, plan.prep_times_ms, plan.trials, plan.seed, kind.uses_habit, kind.uses_planner,
-                    iteration_ms(cfg.agent, plan.timing))
+    told = told_value(loop, plan.told_value)
+    c = candidates(loop, cfg, variant, plan.repeats)
+    sched = schedule(variant, cfg.agent, plan.timing, loop.planner.max_iterations, loop.arbitrator,
+                     loop.env.spec.cues.n if told else 0)
+    return simulate(c, sched, plan.timing.latency_sd_ms, plan.prep_times_ms, plan.trials, plan.seed, plan.default)
+
+
+def told_value(loop: EpisodeLoop, on: bool) -> bool:
+    """Set whether the loop's MPC planner closes its horizon with the told target's cue
+    (:attr:`MPCPlanner.told_value`); returns whether it does (never for another planner)."""
+    from apac_mj.agent.planner import MPCPlanner
+
+    if not isinstance(loop.planner, MPCPlanner):
+        return False
+    loop.planner.told_value = bool(on)
+    return bool(on)
 
 
 def _rows(cfg: TrainConfig, cues: Cues, variant: str, plan: TestPlan, counts: dict[str, np.ndarray],
@@ -348,5 +413,6 @@ def _rows(cfg: TrainConfig, cues: Cues, variant: str, plan: TestPlan, counts: di
                 rows.append({"seed": int(s), "episode": episodes[k], "variant": variant, "prep_ms": float(t), "cue": cue,
                              "remapped": cue in cues.remapped, "trials": plan.trials,
                              **dict(zip(OUTCOMES, counts["outcomes"][k, cue, i].tolist())),
-                             **dict(zip((f"{a}_acted" for a in ACTORS), counts["acted"][k, cue, i].tolist()))})
+                             **dict(zip((f"{a}_acted" for a in ACTORS), counts["acted"][k, cue, i].tolist())),
+                             "guessed": int(counts["guessed"][k, cue, i])})
     return rows

@@ -37,6 +37,7 @@ import numpy as np
 import torch
 
 from apac_mj.agent.arbitration import HISTORY, push_delta
+from apac_mj.run import deliberation
 from apac_mj.suite.vec_env import VecEnv
 from apac_mj.types import (ARM, END, EXTRA, POSITION_DIM, POSITIONS, TARGET, ArbitrationContext, Arbitrator, Decision,
                            Integrator, Observation, Planner, Policy, StepInfo, StepTensors)
@@ -125,6 +126,7 @@ class EpisodeState:
     habit_seconds: np.ndarray | None = None     # [E] this episode's measured decision time where the habit acted (s)
     planning_seconds: np.ndarray | None = None  # [E] ... where the planner acted (s)
     plan_iterations: np.ndarray | None = None   # [E] this episode's planning iterations
+    trials: list | None = None  # [E] each member's last finished trial (a [trials] task: suite.trials.TRIAL_COLUMNS)
 
     def __post_init__(self) -> None:
         E = len(self.step)
@@ -189,7 +191,7 @@ class EpisodeState:
                 "planning_actions": int(self.plan_n[k]),
                 "estimate_error": float(self.estimate_error_sum[k] / max(1, self.step[k])),
                 "habit_seconds": float(self.habit_seconds[k]), "planning_seconds": float(self.planning_seconds[k]),
-                "plan_iterations": int(self.plan_iterations[k])}
+                "plan_iterations": int(self.plan_iterations[k]), **(self.trials[k] if self.trials else {})}
 
     def context(self, episode: np.ndarray, agent: Policy, zone_radius: float,
                 planner: Planner | None = None, habit_action: bool = True) -> ArbitrationContext:
@@ -241,6 +243,8 @@ def select_action(agent: Policy, arbitrator: Arbitrator, ctx: ArbitrationContext
     only when some member's habit acts: a kind that always plans is not charged for a habit it never uses."""
     state = ctx.state
     t0 = time.perf_counter()
+    if hasattr(arbitrator, "exploring"):  # a rule that re-explores does so only where the actor explores (training)
+        arbitrator.exploring = bool(explore)
     decision = arbitrator.use_habit(ctx)
     if not isinstance(decision, tuple) or len(decision) not in (2, 3):
         raise ValueError(f"{type(arbitrator).__name__}.use_habit must return a Decision(habit [E] bools, inputs), "
@@ -267,7 +271,9 @@ def select_action(agent: Policy, arbitrator: Arbitrator, ctx: ArbitrationContext
     bound = agent.sizes.action_bound
     iterations = plan.iterations.cpu().numpy() * ~habit.cpu().numpy()
     seconds = _shares(common_seconds, plan_seconds, iterations)
-    gains = None if plan.habit_value is None else (plan.best_values - plan.habit_value[:, None]).numpy()
+    measure = getattr(arbitrator, "plan_gains", None)  # a rule's own estimate of a plan's gain (the graded rule)
+    gains = None if plan.habit_value is None else (plan.best_values - plan.habit_value[:, None]).numpy() \
+        if measure is None else measure(agent, ctx, plan, planner)
     return Choice(proposal.clamp(-bound, bound), Decision(habit, dict(decision.inputs), decision.iterations),
                   iterations, seconds, gains)
 
@@ -383,13 +389,15 @@ class EpisodeLoop:
         t0 = time.perf_counter()
         ctx = st.context(episode if arbitration_episode is None else arbitration_episode, self.agent,
                          self.zone_radius, self.planner, habit_action=self.arbitrator.needs_habit_action)
+        meter = deliberation.meter(self.env, ctx)  # None: the world waits (no [deliberation] table)
         choice = select_action(self.agent, self.arbitrator, ctx, active, explore, self.planner,
                                habit_seconds=time.perf_counter() - t0)
         action, habit, inputs = choice.action, choice.decision.habit, decision_inputs(choice.decision)
         if override is not None:
             action, habit = override(action, habit)
         info = agent_step(self.agent, self.env, self.integrator, st.state, episode, st.step, active, action, habit,
-                          zone_radius=self.zone_radius)
+                          zone_radius=self.zone_radius,
+                          deliberation_ms=None if meter is None else meter.decision_ms(self.planner, choice, action))
         info.arbitration, info.decision_seconds = inputs, choice.seconds
         info.plan_iterations = np.where(habit.cpu().numpy(), 0, choice.iterations)
         info.plan_gains = choice.gains
@@ -401,6 +409,10 @@ class EpisodeLoop:
                 next_state: torch.Tensor | np.ndarray | None = None) -> None:
         """Carry ``st`` past ``info`` (see :meth:`EpisodeState.advance`), then the step hook."""
         st.advance(info, active, counted, next_state)
+        if self.env.spec.trials is not None:  # the finished trials' measures, before their members are reset
+            st.trials = st.trials or [{} for _ in range(self.env.E)]
+            for k in np.flatnonzero(active & info.done):
+                st.trials[k] = self.env.trial_record(k)
         self.arbitrator.observe(info, active if counted is None else counted, self.adapt)
         for hook in self.hooks:
             hook.on_step(info, self.env)
@@ -447,15 +459,19 @@ def _checked(hooks: Sequence[Hook]) -> list[Hook]:
 
 def agent_step(agent: Policy, vec_env: VecEnv, integrator: Integrator, state: torch.Tensor, episode: np.ndarray,
                step: np.ndarray, active: np.ndarray, action: torch.Tensor, habit: torch.Tensor,
-               zone_radius: float | None = None) -> StepInfo:
+               zone_radius: float | None = None, deliberation_ms: np.ndarray | None = None) -> StepInfo:
     """One step of the ``active`` members with ``action`` ``[E,2]`` (``habit`` ``[E]``: the actor chose it).
 
     ``integrator`` makes ``s_{t+1}`` from the prediction and the observation; ``zone_radius`` is the
-    radius the agent uses to judge its own estimate under occlusion (default: the task's).
+    radius the agent uses to judge its own estimate under occlusion (default: the task's);
+    ``deliberation_ms`` ``[E]``: the decision's time, which the plant runs on for under the last command before
+    ``action`` starts (a world that does not wait, :mod:`apac_mj.run.deliberation`; None: the world waits).
     """
     device = state.device
     executable = agent.executable(action, state)  # what the plant will do: every network sees this action
     predicted = agent.predict_arm(state, executable)
+    if deliberation_ms is not None:
+        deliberation.elapse(vec_env, deliberation_ms, active)
     obs = vec_env.step(action.detach().cpu().double().numpy(), active)
     seen, vision, seen_reward, reached, active_t = _observed_step(obs, active, device)
     if vec_env.extra.shape[1]:  # the integrator estimates the positions; the extra observations (proprioception)

@@ -59,6 +59,27 @@ LATEST, PREVIOUS, OLD_CHECKPOINTS = "latest.pt", "previous.pt", "ckpt_*.pt"
 METRIC_COLUMNS = ("seed", "episode", "phase", "success", "steps", "return", "final_distance", "habit_actions",
                   "planning_actions", "l1", "l2", "target_x", "target_y", "critic_loss", "actor_loss",
                   "forward_loss", "inverse_loss", "estimate_error")
+#: The per-trial columns a task with a ``[trials]`` table adds (apac_mj.suite.trials.TRIAL_COLUMNS, the same names;
+#: docs/environment.md "Trial types"), after the others; no other task's metrics have them. In the rows' digest where
+#: present.
+TRIAL_COLUMNS = {
+    #: the block's name (``[[trials.block]] name``)
+    "trial_block": "block",
+    #: "field", "null", "channel" or "catch"
+    "trial_type": "type",
+    #: the curl field's b applied in the episode (N·s/m; 0 in channel, catch and null trials)
+    "trial_field_b": "N·s/m",
+    #: signed largest perpendicular deviation from the straight line to the target (cm; + where the b > 0 field pushes)
+    "lateral_error": "cm",
+    #: the agent's lateral force against the channel, its signed peak (N; NaN off channel trials)
+    "channel_force_peak": "N",
+    #: the agent's lateral force against the channel at the movement's peak hand speed (N; NaN off channel trials)
+    "channel_force_at_peak_speed": "N",
+    #: the hand's peak speed in the movement (cm/s)
+    "peak_speed": "cm/s",
+    #: the hand moved more than ``trials.early_movement_cm`` before the go cue (False without a go cue)
+    "early_movement": "bool",
+}
 # After them: the measured columns (issue 28; apac_mj.types.TIMING_COLUMNS), not in the rows' digest (wall times
 # differ from run to run; runs from before them lack them: NaN when such a run is extended); then any further
 # column of the rows (the dynamics model's ``dynamics_loss``, a new per-episode measure), in the rows' order.
@@ -596,7 +617,8 @@ def metric_columns(rows: list[dict[str, Any]]) -> list[str]:
 
 def metric_digest(rows: list[dict[str, Any]]) -> str:
     """A SHA-256 of metric rows' values in METRIC_COLUMNS order (floats by their exact repr; NaN as NaN)."""
-    values = [[_scalar(r.get(c)) for c in METRIC_COLUMNS] for r in rows]
+    values = [[_scalar(r.get(c)) for c in METRIC_COLUMNS] + [_scalar(r[c]) for c in TRIAL_COLUMNS if c in r]
+              for r in rows]
     return hashlib.sha256(json.dumps(values, allow_nan=True).encode()).hexdigest()
 
 

@@ -225,7 +225,7 @@ class Trainer:
             if babbling.any() else None
         angles_before = self.run.env.joint_angles()
         info = episodes.act(st, active, st.episode, explore=True, override=override)
-        s, s2, r, done = _transition(info, babbling)
+        s, s2, r, done = _transition(info, babbling, sensed=self.spec.signals is not None)
         if executed_is_joint_change(self.cfg.agent, self.spec):
             executed = torch.as_tensor(info.joint_angles - angles_before, dtype=torch.float32, device=agent.device)
         elif agent.sizes.angle_actions:  # the set-point change the servos received (the plant clips it alike)
@@ -367,17 +367,22 @@ def _babbling_action(cfg: AgentConfig, action: torch.Tensor, habit: torch.Tensor
     return action, habit & ~torch.as_tensor(babbling, device=habit.device)
 
 
-def _transition(info: StepInfo, babbling: np.ndarray) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+def _transition(info: StepInfo, babbling: np.ndarray, sensed: bool = False
+                ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """``(s, s2, r, terminal)`` to store, on the agent's device; babbling: target := reached end position, r = 0,
     terminal.
 
-    Babbling sees the arm, so its next state is MuJoCo's arm even under occluded vision.
+    Babbling sees the arm, so its next state is MuJoCo's arm even under occluded vision; ``sensed`` (a task with
+    a ``[signals]`` table): the arm as the delayed, noisy signals delivered it, where vision showed it.
     """
     t = info.tensors
     s, s2, r, done = t.state.clone(), t.next_state.clone(), t.reward.clone(), t.terminal.float()
     if babbling.any():
         rows = torch.as_tensor(np.flatnonzero(babbling), device=s.device)
         arm = torch.as_tensor(info.true_arm[babbling], dtype=s.dtype, device=s.device)  # MuJoCo's, one transfer
+        if sensed:  # what the senses delivered, where the arm was seen
+            seen = torch.as_tensor(info.vision[babbling], device=s.device)[:, None]
+            arm = torch.where(seen, s2[rows][:, ARM], arm)
         s[rows, TARGET], s2[rows, ARM], s2[rows, TARGET] = arm[:, END], arm, arm[:, END]
         r[rows], done[rows] = 0.0, 1.0
     return s, s2, r, done

@@ -234,7 +234,7 @@ def package_version() -> str:
         return "unknown"
 
 
-def export(run_dir: str | Path, out: str | Path, dtype: str = "fp32") -> Path:
+def export(run_dir: str | Path, out: str | Path, dtype: str = "fp16") -> Path:
     """Write a cell (``out``: a new directory) from the finished run ``run_dir``: its final checkpoint's shipped
     networks in ``dtype`` ("fp16" or "fp32"), the environments' state, the running statistics and the manifest
     (without published numbers: ``apac-mj zoo export`` adds them). Everything is checked before ``out`` is made."""

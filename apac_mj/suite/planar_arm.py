@@ -21,7 +21,10 @@ from apac_mj.util import paths
 from apac_mj.kinematics import motion_function
 from apac_mj.suite.plant import (_SITE, FORCE_UNIT, INERTIA_UNIT, LENGTH_UNIT, TORQUE_UNIT,  # noqa: F401 (re-exported)
                                   Plant, PlantSpec, check_field, curl_force)
+from apac_mj.suite import deliberation
 from apac_mj.suite.task_spec import START_ANGLES, TaskSpec
+from apac_mj.suite.signals import Senses, check_actuation, motor_command
+from apac_mj.suite.trials import TrialRunner, trial_key
 
 #: Physics sub-steps per environment step under servo actuation. With the
 #: servo gains in the MJCF (kp = 1e4, kv = 200, rotor armature 1, 10 ms
@@ -86,6 +89,9 @@ class Physics(engine.Physics):
     #: The arm's dynamics (:meth:`set_plant`: masses, gravity, hand load, force field; :mod:`apac_mj.suite.plant`);
     #: None: the paper's ideal arm as the MJCF has it.
     dynamics: Plant | None = None
+    #: Called with this physics after every sub-step (a task's feedback delays record what is observed:
+    #: :class:`~apac_mj.suite.signals.Senses`); None: :meth:`step` runs its sub-steps in one call.
+    sub_step_hook = None
 
     def _reload_from_data(self, data) -> None:
         # Set before the base class runs after_reset(), and again on every copy/reload.
@@ -228,8 +234,17 @@ class Physics(engine.Physics):
 
     def step(self, nstep: int = 1) -> None:
         """dm_control's step; with a force field on, the plant's (:meth:`Plant.step`): the field's force set
-        before every sub-step from the hand's velocity then."""
-        if self.field_b == 0.0:
+        before every sub-step from the hand's velocity then. With a :attr:`sub_step_hook`, one sub-step at a
+        time (the same MuJoCo calls in the same order), the hook after each."""
+        if self.sub_step_hook is not None:
+            for _ in range(nstep):
+                self._step(1)
+                self.sub_step_hook(self)
+            return
+        self._step(nstep)
+
+    def _step(self, nstep: int) -> None:
+        if self.field_b == 0.0 and (self.dynamics is None or self.dynamics.trial is None):
             return super().step(nstep)
         with self.check_invalid_state():
             self.dynamics.step(nstep)
@@ -366,6 +381,10 @@ class Reach(base.Task):
         self.cue = -1
         self._cue_override: int | None = None
         self._mapping_override: bool | None = None
+        #: The ``[signals]`` table's delays and sensory noise (None: no table, or all of it zero: today's task).
+        self.senses = Senses(spec.signals, spec.plant) if spec.signals is not None and spec.signals.active else None
+        #: The ``[trials]`` table at run time (:class:`~apac_mj.suite.trials.TrialRunner`; None: no table).
+        self.trials = None if spec.trials is None else TrialRunner(spec.trials, trial_key(self.random))
 
     # -- run-time controls ----------------------------------------------------
     def set_cue_override(self, cue: int | None) -> None:
@@ -424,18 +443,24 @@ class Reach(base.Task):
             self._lengths = np.array(self.spec.link_lengths, dtype=np.float64)
         physics.set_link_lengths(*self._lengths)
         physics.set_joint_limits(self.spec.at_limit == "clip", self.spec.joint_range)
+        if self.trials is not None:  # the episode's trial (its field) before the plant is set for it
+            self.trials.new_episode(self.episode)
         self.apply_episode_plant(physics)
         physics.set_joint_angles(*START_ANGLES)
         physics.set_target(self._episode_target())
         physics.forward()
+        if self.trials is not None:
+            self.trials.begin(physics)
         self._draw_view(first=True)
+        if self.senses is not None:
+            self.senses.start(physics)
 
     def apply_episode_plant(self, physics: Physics) -> None:
         """This episode's hand load and force field (the ``[plant]`` schedule); nothing for the ideal arm."""
         plant = self.spec.plant
         if plant.dynamic:
             physics.set_load(plant.load_at(self.episode))
-            physics.set_field(plant.field_at(self.episode))
+            physics.set_field(plant.field_at(self.episode) if self.trials is None else self.trials.field_b)
 
     def _draw_view(self, first: bool) -> None:
         """Draw this step's view (seen flag, noise) once; :meth:`get_observation` reads it."""
@@ -448,6 +473,8 @@ class Reach(base.Task):
             self._seen = True
         std = spec.observation_noise_std
         self._noise = self.random.normal(0.0, std, size=6) if self._seen and std > 0 else None
+        if self.senses is not None:
+            self.senses.draw(self.random)
 
     def _episode_target(self) -> np.ndarray:
         if self.spec.cues is not None:
@@ -493,6 +520,8 @@ class Reach(base.Task):
 
     def before_step(self, action, physics: Physics) -> None:
         action = validate_action(action, torque=self.spec.plant.actuation == "torque")
+        if self.senses is not None and self.spec.signals.motor_noisy:
+            action = motor_command(action, self.spec.signals, self.random)
         if self.growing:
             self._lengths = self._lengths + self.spec.growth_per_step
             physics.set_link_lengths(*self._lengths)
@@ -512,6 +541,8 @@ class Reach(base.Task):
 
     def after_step(self, physics: Physics) -> None:
         self.step_count += 1
+        if self.trials is not None:  # the ideal plant's trial measures; the go cue
+            self.trials.after_step(physics, self.step_count)
         self._draw_view(first=False)
 
     def observation_spec(self, physics: Physics) -> collections.OrderedDict:
@@ -530,36 +561,49 @@ class Reach(base.Task):
 
     def get_observation(self, physics: Physics) -> collections.OrderedDict:
         seen, noise = self._seen, self._noise
+        end, elbow, target, velocities = self._signals(physics)
         obs = collections.OrderedDict()
-        obs["end_effector"] = physics.end_effector() if seen else np.zeros(2)
-        obs["elbow"] = physics.elbow() if seen else np.zeros(2)
-        obs["target"] = physics.target() if seen else np.zeros(2)
+        obs["end_effector"] = end if seen else np.zeros(2)
+        obs["elbow"] = elbow if seen else np.zeros(2)
+        obs["target"] = target if seen else np.zeros(2)
         if noise is not None:
             for i, name in enumerate(("end_effector", "elbow", "target")):
                 obs[name] += noise[2 * i:2 * i + 2]
         obs["vision"] = np.array([1.0 if seen else 0.0])
         if self.spec.plant.observe_velocities:  # proprioception: felt whether the arm is seen or not
-            obs["joint_velocities"] = physics.joint_velocities()
+            obs["joint_velocities"] = velocities
         if self.spec.cues is not None:  # the stimulus stays on the screen for the whole episode, seen or not
             obs["cue"] = np.eye(self.spec.cues.n)[self.cue] if self.cue >= 0 else np.zeros(self.spec.cues.n)
         return obs
 
+    def _signals(self, physics: Physics) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+        """(end_effector, elbow, target, joint_velocities) as the agent receives them: the true ones now, or
+        (a ``[signals]`` table) delayed and noisy (:class:`~apac_mj.suite.signals.Senses`)."""
+        if self.senses is not None:
+            return self.senses.read(physics)
+        velocities = physics.joint_velocities() if self.spec.plant.observe_velocities else None
+        return physics.end_effector(), physics.elbow(), physics.target(), velocities
+
     def get_reward(self, physics: Physics) -> float:
+        if self.trials is not None and self.trials.holding(self.step_count):
+            return self.trials.hold_reward(physics)  # before the go cue: hold still
         return -physics.distance_to_target()
 
     def reached(self, physics: Physics) -> bool:
         """The target is reached: the hand inside the zone and, under a stop criterion (``spec.stop_speed``,
         deg/s), every joint's |angular velocity| at most ``stop_speed``. Without one (the paper's tasks): the
-        zone alone."""
+        zone alone. Never before a ``[trials]`` go cue."""
         if not physics.distance_to_target() <= self.spec.zone_radius:
+            return False
+        if self.trials is not None and self.trials.holding(self.step_count):
             return False
         stop = self.spec.stop_speed
         return stop is None or stopped(physics, stop)
 
     def get_termination(self, physics: Physics):
-        if self.reached(physics):
-            return 0.0  # terminal: the target is reached
-        if self.step_count >= self.spec.steps_per_episode:
+        if self.reached(physics) and deliberation.in_time(self.spec, physics):
+            return 0.0  # terminal: the target is reached (by the deadline, where the world does not wait)
+        if self.step_count >= self.spec.steps_per_episode or deliberation.time_up(self.spec, physics):
             return 1.0  # time limit: a truncation, discount 1
         return None
 
@@ -574,6 +618,8 @@ class Reach(base.Task):
             "seen": self._seen,
             "noise": None if self._noise is None else self._noise.copy(),
             "cue": self.cue, "cue_override": self._cue_override, "mapping_override": self._mapping_override,
+            "senses": None if self.senses is None else self.senses.get_state(),
+            "trials": None if self.trials is None else self.trials.get_state(),
         }
 
     def set_state(self, state: dict) -> None:
@@ -588,6 +634,10 @@ class Reach(base.Task):
         self._noise = None if noise is None else np.asarray(noise, dtype=np.float64).reshape(6).copy()
         self.cue = int(state.get("cue", -1))
         self._cue_override, self._mapping_override = state.get("cue_override"), state.get("mapping_override")
+        if self.senses is not None and state.get("senses") is not None:
+            self.senses.set_state(state["senses"])
+        if self.trials is not None and state.get("trials") is not None:
+            self.trials.set_state(state["trials"])
 
 
 def stopped(physics: Physics, stop_speed: float) -> bool:
@@ -620,12 +670,16 @@ def action_bound(spec: TaskSpec) -> float:
 def make_environment(spec: TaskSpec, actuation: str = "servo", random=None, **environment_kwargs) -> control.Environment:
     physics = make_physics()
     physics.plane_size = spec.plane_size
+    check_actuation(spec.name, spec.signals, actuation)
     task = Reach(spec, actuation=actuation, random=random)
+    if task.senses is not None and spec.signals.delayed:
+        physics.sub_step_hook = task.senses.record
     if spec.plant.dynamic:
         if actuation != "servo":
             raise ValueError(f"task {spec.name!r} has a {spec.plant.actuation} plant ([plant]); actuation "
                              f"{actuation!r} would write the joint angles and skip its dynamics: use 'servo'")
         physics.set_plant(spec.plant)
+        physics.dynamics.trial = task.trials  # a [trials] table's channel and measures, every sub-step
         environment_kwargs.setdefault("n_sub_steps", spec.plant.sub_steps)
     environment_kwargs.setdefault("n_sub_steps", N_SUB_STEPS if actuation == "servo" else KINEMATIC_SUB_STEPS)
     return control.Environment(physics, task, **environment_kwargs)

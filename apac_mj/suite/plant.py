@@ -41,6 +41,17 @@ class TaskSpecError(ValueError):
     (:mod:`apac_mj.suite.task_spec`, which re-exports this class)."""
 
 
+def check_table_keys(table: Any, known: Any, where: str, form: str) -> dict:
+    """``table`` (a task file's table, ``form`` as the file writes it: "[signals]") as a dict whose keys are all
+    ``known``; else :class:`TaskSpecError` naming ``where`` and the unknown keys."""
+    if not isinstance(table, dict):
+        raise TaskSpecError(f"{where} must be a table ({form}) with keys {list(known)}, got {table!r}")
+    unknown = sorted(set(table) - set(known))
+    if unknown:
+        raise TaskSpecError(f"{where}: unknown key(s) {unknown}; known: {list(known)}")
+    return table
+
+
 def finite_number(value: Any, where: str) -> float:
     """``value`` as a float; :class:`TaskSpecError` naming ``where`` unless it is a finite real number."""
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) or not math.isfinite(value):
@@ -362,6 +373,9 @@ class Plant:
         #: Point load in the hand (kg) and the curl field's b (N·s/m) now.
         self.load: float = spec.load
         self.field_b: float = 0.0
+        #: The task's trials (``suite.trials.TrialRunner``: a force channel in place of the field, and the
+        #: per-trial measures, every sub-step); None: the field alone (every task without a ``[trials]`` table).
+        self.trial: Any = None
         self.bind(model, data, ids)
 
     def bind(self, model: mujoco.MjModel, data: mujoco.MjData, ids: Any) -> None:
@@ -456,6 +470,9 @@ class Plant:
         this runs every sub-step."""
         v, hand, com, b = self._vel6, self._hand_x, self._fore_com, self.field_b
         mujoco.mj_objectVelocity(self._m, self._d, _SITE, self.ids.end_site, v, 0)
-        fx, fy = b * v[4], -b * v[3]  # F = B v, B = [[0, b], [-b, 0]]; N·s/m = kg/s in cm units too
+        if self.trial is None:
+            fx, fy = b * v[4], -b * v[3]  # F = B v, B = [[0, b], [-b, 0]]; N·s/m = kg/s in cm units too
+        else:  # the trial's force (a channel, or this field) and its measures
+            fx, fy = self.trial.sub_step(hand[0], hand[1], v[3], v[4], b)
         ax, ay, az = hand[0] - com[0], hand[1] - com[1], hand[2] - com[2]
         self._fore_xfrc[:] = (fx, fy, 0.0, -az * fy, az * fx, ax * fy - ay * fx)  # force; arm x force

@@ -22,8 +22,11 @@ import numpy as np
 from typing import Any
 
 from apac_mj.suite.plant import (PLANT_ACTUATIONS, PLANT_SOURCES, PLANT_UNITS, STANDARD_GRAVITY,  # noqa: F401
-                                  PlantSpec, TaskSpecError, check_plant, check_task_plant, describe_plant,
+                                  PlantSpec, TaskSpecError, check_plant, check_table_keys, check_task_plant, describe_plant,
                                   finite_number, parse_plant, plant_override)
+from apac_mj.suite.deliberation import DeliberationSpec, check_deliberation, parse_deliberation
+from apac_mj.suite.signals import SignalSpec, check_task_signals, describe_signals, parse_signals
+from apac_mj.suite.trials import TrialSpec, check_task_trials, parse_trials
 from apac_mj.util import paths
 from apac_mj.util.registry import Registry
 
@@ -167,6 +170,16 @@ class TaskSpec:
     #: File table ``[cues]``: a cued-target task (:class:`Cues`: the target is a shown cue's, under a mapping
     #: that a remap may change); None: the target itself is shown (every other task).
     cues: Cues | None = None
+    #: File table ``[signals]``: feedback delays and motor and sensory noise (:class:`~apac_mj.suite.signals.SignalSpec`,
+    #: docs/environment.md "Signals: delays and noise"); None (no table): none, today's task exactly.
+    signals: SignalSpec | None = None
+    #: File table ``[deliberation]``: the world does not wait while the agent decides (:class:`DeliberationSpec`,
+    #: :mod:`apac_mj.suite.deliberation`); None: it waits (every task before it).
+    deliberation: DeliberationSpec | None = None
+    #: File table ``[trials]``: channel and catch trials, a go cue, a block schedule of curl fields
+    #: (:class:`~apac_mj.suite.trials.TrialSpec`, docs/environment.md "Trial types: channel, catch, go cue,
+    #: blocks"); None (no table): every episode as the ``[plant]`` schedule has it (every task before it).
+    trials: TrialSpec | None = None
 
     def __post_init__(self) -> None:
         _check_choice(self, "target_mode", ("static", "changing"))
@@ -204,6 +217,12 @@ class TaskSpec:
         check_task_plant(self.name, self.plant)
         if self.cues is not None:
             _check_cues(self)
+        if self.signals is not None:
+            check_task_signals(self.name, self.signals, self.plant, self.steps_per_episode, self.vision_noise_std)
+        if self.deliberation is not None:
+            check_deliberation(self)
+        if self.trials is not None:
+            check_task_trials(self.name, self.trials, self.plant, self.steps_per_episode, self.vision)
 
     @property
     def cued(self) -> bool:
@@ -227,6 +246,9 @@ class TaskSpec:
             raise TaskSpecError(f"task {self.name!r}: unknown override(s) {sorted(unknown)}")
         typed = {k: v if k == "name" or (k == "region" and isinstance(v, Region))
                  else plant_override(v, f"task {self.name!r}: override plant", self.plant) if k == "plant"
+                 else parse_signals(v, f"task {self.name!r}: override", self.signals) if k == "signals"
+                 else parse_deliberation(v, f"task {self.name!r}: override", self.deliberation)
+                 if k == "deliberation" and v is not None
                  else _coerce(k, v, f"task {self.name!r}: override {k}") for k, v in overrides.items()}
         return dataclasses.replace(self, **typed)
 
@@ -235,8 +257,9 @@ def describe(spec: TaskSpec) -> str:
     """Every field of ``spec``, one ``name = value`` line each, ``*`` marking those that differ from the defaults."""
     default = TaskSpec(name=spec.name)
     return "\n".join([*(f"{'*' if getattr(spec, f.name) != getattr(default, f.name) else ' '} {f.name} = "
-                       f"{getattr(spec, f.name)!r}" for f in dataclasses.fields(spec) if f.name not in ("name", "plant")),
-                      describe_plant(spec.plant)])
+                       f"{getattr(spec, f.name)!r}" for f in dataclasses.fields(spec)
+                         if f.name not in ("name", "plant", "signals")),
+                      describe_plant(spec.plant), describe_signals(spec.signals, spec.plant)])
 
 
 def _check_cues(spec: TaskSpec) -> None:
@@ -389,10 +412,16 @@ def parse_task(data: dict[str, Any], name: str, source: str = "<dict>") -> TaskS
     for key, value in data.items():
         if key == "cues":
             kwargs["cues"] = parse_cues(value, source)
+        elif key == "signals":
+            kwargs["signals"] = parse_signals(value, f"{source}:")
+        elif key == "deliberation":
+            kwargs["deliberation"] = parse_deliberation(value, source)
+        elif key == "trials":
+            kwargs["trials"] = parse_trials(value, source)
         elif isinstance(value, dict) and key != "plant":
             if key not in _LAYOUT or key == "":
-                raise TaskSpecError(f"{source}: unknown section [{key}]; known: "
-                                f"{sorted([*(k for k in _LAYOUT if k), 'plant', 'cues'])}")
+                known = [*(k for k in _LAYOUT if k), 'plant', 'cues', 'deliberation', 'signals', 'trials']
+                raise TaskSpecError(f"{source}: unknown section [{key}]; known: {sorted(known)}")
             for sub, sub_value in value.items():
                 if sub not in _LAYOUT[key]:
                     raise TaskSpecError(f"{source}: unknown key {key}.{sub}; known in [{key}]: {sorted(_LAYOUT[key])}")
@@ -417,11 +446,7 @@ def parse_cues(table: Any, source: str) -> Cues:
     where = f"{source}: [cues]"
     if isinstance(table, Cues):
         return table
-    if not isinstance(table, dict):
-        raise TaskSpecError(f"{where} must be a table with keys {list(_CUE_KEYS)}, got {table!r}")
-    unknown = sorted(set(table) - set(_CUE_KEYS))
-    if unknown:
-        raise TaskSpecError(f"{where}: unknown key(s) {unknown}; known: {list(_CUE_KEYS)}")
+    check_table_keys(table, _CUE_KEYS, where, "[cues]")
     if "targets" not in table:
         raise TaskSpecError(f"{where} needs targets = [[x, y], ...] (cm), one per cue")
     targets = table["targets"]
@@ -441,6 +466,10 @@ def parse_cues(table: Any, source: str) -> Cues:
 def _coerce(field: str, value: Any, where: str) -> Any:
     if field == "region":
         return Region(test_y_min=finite_number(value, where))
+    if field == "deliberation":
+        return None if value is None else parse_deliberation(value, where)
+    if field == "trials":
+        return None if value is None else parse_trials(value, where)
     if field == "cues":
         return None if value is None else parse_cues(value, where)
     if field in _PAIRS:

@@ -25,7 +25,7 @@ from dm_control.rl import control
 
 from apac_mj import suite
 from apac_mj.layout import Sizes
-from apac_mj.suite import planar_arm
+from apac_mj.suite import deliberation, planar_arm
 from apac_mj.suite.task_spec import TaskSpec
 from apac_mj.types import Observation
 
@@ -58,7 +58,8 @@ class VecEnv:
                                 **({"plant": spec.plant.shifted(episode_offset)} if spec.plant.dynamic else {}),
                                 **({"cues": dataclasses.replace(spec.cues, remap_episode=spec.cues.remap_episode
                                                                 + episode_offset)}
-                                   if spec.cued and spec.cues.remap_episode is not None else {}))
+                                   if spec.cued and spec.cues.remap_episode is not None else {}),
+                                **({"trials": spec.trials.shifted(episode_offset)} if spec.trials is not None else {}))
         self.seeds, self.actuation, self.episode_offset = seeds, actuation, episode_offset
         self.envs = [planar_arm.make_environment(spec, actuation=actuation, random=s) for s in seeds]
         self.E = len(seeds)
@@ -158,6 +159,17 @@ class VecEnv:
             self.set_cue_override(None)
             self.set_mapping_override(None)
 
+    def trial_record(self, k: int) -> dict[str, Any]:
+        """Member ``k``'s trial this episode as metrics columns (``suite.trials.TRIAL_COLUMNS``; {} without a
+        ``[trials]`` table)."""
+        trials = self.envs[k].task.trials
+        return {} if trials is None else trials.record()
+
+    def trial_view(self, k: int) -> dict[str, Any] | None:
+        """Member ``k``'s trial as a recording shows it (``suite.trials.TrialRunner.view``; None without a table)."""
+        trials = self.envs[k].task.trials
+        return None if trials is None else trials.view()
+
     def cues(self) -> np.ndarray:
         """``[E]`` each member's cue this episode (-1: not a cued task)."""
         return np.array([env.task.cue for env in self.envs])
@@ -191,6 +203,10 @@ class VecEnv:
         """``[E]`` every joint of each member at most ``stop_speed`` deg/s, as observed (the stop criterion's
         speed part: ``planar_arm.stopped``)."""
         return np.array([planar_arm.stopped(e.physics, stop_speed) for e in self.envs], dtype=bool)
+
+    def in_time(self) -> np.ndarray:
+        """``[E]`` each member's plant time within its task's deadline (``[deliberation]``; no table: all True)."""
+        return np.array([deliberation.in_time(self.spec, e.physics) for e in self.envs], dtype=bool)
 
     def joint_angles(self) -> np.ndarray:
         return np.stack([e.physics.joint_angles() for e in self.envs])
@@ -231,9 +247,21 @@ def _member_state(env) -> dict[str, Any]:
                  else torch.from_numpy(task._target_override.copy()),
                  "step_count": int(task.step_count), "seen": bool(ts["seen"]),
                  "noise": None if ts["noise"] is None else torch.from_numpy(ts["noise"].copy()),
-                 "cue": int(ts["cue"]), "cue_override": ts["cue_override"], "mapping_override": ts["mapping_override"]},
+                 "cue": int(ts["cue"]), "cue_override": ts["cue_override"], "mapping_override": ts["mapping_override"],
+                 **({"senses": _tensors(ts["senses"])} if ts.get("senses") is not None else {}),
+                 **({"trials": ts["trials"]} if ts.get("trials") is not None else {})},
         **_environment_counters(env),
     }
+
+
+def _tensors(d: dict[str, Any]) -> dict[str, Any]:
+    """A task's ``[signals]`` state (:class:`~apac_mj.suite.signals.Senses`) with its arrays as tensors."""
+    return {k: torch.from_numpy(v.copy()) if isinstance(v, np.ndarray) else v for k, v in d.items()}
+
+
+def _arrays(d: dict[str, Any]) -> dict[str, Any]:
+    """:func:`_tensors` undone."""
+    return {k: v.numpy().astype(np.float64) if isinstance(v, torch.Tensor) else v for k, v in d.items()}
 
 
 def _set_member_state(env, s: dict[str, Any]) -> None:
@@ -245,7 +273,9 @@ def _set_member_state(env, s: dict[str, Any]) -> None:
                     "seen": t.get("seen", True),
                     "noise": None if t.get("noise") is None else t["noise"].numpy(),
                     "cue": t.get("cue", -1), "cue_override": t.get("cue_override"),
-                    "mapping_override": t.get("mapping_override")})
+                    "mapping_override": t.get("mapping_override"),
+                    "senses": None if t.get("senses") is None else _arrays(t["senses"]),
+                    "trials": t.get("trials")})
     task.set_target_override(None if t["target_override"] is None else t["target_override"].numpy())
     task.step_count = int(t["step_count"])
     p.plane_size = task.spec.plane_size
