@@ -48,6 +48,9 @@ MODULES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
                 "tests/test_agent.py", "tests/test_precision.py", "tests/test_inverse_updates.py")),
     "stats": (("apac_mj/report/stats.py",), ("tests/test_stats_coverage.py", "tests/test_stats_known.py",
                                              "tests/test_doc_numbers.py", "tests/test_dynamics_bench.py")),
+    "two_state": (("apac_mj/report/two_state.py",), ("tests/test_two_state.py",)),
+    "hardwick": (("apac_mj/report/hardwick.py",), ("tests/test_hardwick_model.py", "tests/test_hardwick_human.py")),
+    "signals": (("apac_mj/suite/signals.py",), ("tests/test_signals.py",)),
 }
 #: mutmut's outcomes that count as killed (a test failed, or the mutant hung past the timeout).
 KILLED = ("killed", "timeout")

@@ -84,3 +84,56 @@ def test_lateral_error_sign_follows_the_curl_field():
     assert ts.lateral_error(path, (0, 3), (0, 0)) == pytest.approx(-0.3)  # moving -y, clockwise is -x
     assert ts.lateral_error(np.array([[0, 0], [1, -0.5], [2, 0.2]]), (0, 0), (2, 0)) == pytest.approx(0.5)
 
+
+
+def test_packed_coordinates_map_to_the_parameters_by_hand():
+    """``A_s = A_f + (1 - A_f) z1``, ``B_f = B_s + (1 - B_s) z3``, each coordinate clipped to [0, 1]."""
+    p = ts._unpack(np.array([0.5, 0.5, 0.2, 0.25]))
+    assert (p.A_f, p.A_s, p.B_s, p.B_f) == pytest.approx((0.5, 0.75, 0.2, 0.4))
+    assert ts._unpack(np.array([1.5, -0.5, 0.0, 1.0])).as_dict() == pytest.approx(
+        {"A_f": 1.0, "B_f": 1.0, "A_s": 1.0, "B_s": 0.0})
+
+
+def test_a_fit_reports_its_rmse_and_trials_by_hand():
+    """Null trials keep x at 0 whatever the parameters, so measured values of +-1 leave residuals of exactly 1."""
+    y = np.array([1.0, -1.0, np.nan, 1.0, -1.0, 1.0, np.nan])
+    r = ts.fit(np.zeros(7), np.zeros(7, bool), y)
+    assert r.rmse == pytest.approx(1.0, abs=1e-9) and r.trials == 5
+
+
+def test_seeds_are_fitted_one_by_one_and_summarized_inside_the_unit_interval():
+    f, c = ts.paradigm(BLOCKS)
+    x = ts.simulate(SMITH, f, c)["x"].to_numpy()
+    table = pd.concat([pd.DataFrame({"seed": s, "trial": np.arange(f.size), "field": f, "channel": c,
+                                     "adaptation": np.where(c | (np.arange(f.size) % 5 == 0), x, np.nan)})
+                       for s in (3, 7, 9)])
+    per_seed = ts.fit_seeds(table)
+    assert list(per_seed.columns) == ["seed", *ts.PARAMETERS, "rmse", "trials"]
+    assert per_seed.seed.tolist() == [3, 7, 9] and (per_seed.trials == int(np.isfinite(table.adaptation).sum() / 3)).all()
+    assert (per_seed.rmse < 1e-6).all() and per_seed.A_s.to_numpy() == pytest.approx(SMITH.A_s, rel=1e-3)
+    near_one = per_seed.assign(A_s=[0.999, 1.0, 0.98])
+    summary = ts.summarize(near_one).set_index("parameter")
+    assert list(summary.columns) == ["mean", "lo", "hi", "seeds"] and (summary.seeds == 3).all()
+    assert summary.loc["A_s", "mean"] == pytest.approx(np.mean([0.999, 1.0, 0.98]))
+    assert summary.loc["A_s", "hi"] == 1.0 and 0.9 < summary.loc["A_s", "lo"] < 0.98  # clipped to [0, 1]
+
+
+def test_spontaneous_recovery_and_lateral_error_by_hand():
+    x = np.array([5.0, 0.0, 0.2, 0.5, 0.3])
+    assert ts.spontaneous_recovery(x, slice(1, 5)) == pytest.approx(0.5)
+    assert ts.spontaneous_recovery(-x, slice(1, 5), sign=-1.0) == pytest.approx(0.5)
+    assert ts.spontaneous_recovery(np.array([0.4, 0.9]), slice(0, 2)) == pytest.approx(0.5)  # from where it began
+    with pytest.raises(ValueError, match="empty"):
+        ts.spontaneous_recovery(x, slice(5, 5))
+    # start (1, 2) -> target (4, 6): direction (0.6, 0.8), clockwise (0.8, -0.6); a point 0.5 along it
+    path = np.array([[1.0, 2.0], [1.4, 1.7], [4.0, 6.0]])
+    assert ts.lateral_error(path, (1, 2), (4, 6)) == pytest.approx(0.5)
+
+
+def test_one_trial_and_an_empty_block_are_a_schedule():
+    f, c = ts.paradigm([("null", 0), ("channel", 1)])
+    assert f.tolist() == [0.0] and c.tolist() == [True]
+    with pytest.raises(ValueError, match="trials >= 0"):
+        ts.paradigm([("null", -1)])
+    with pytest.raises(ValueError, match="one length >= 1"):
+        ts.check_schedule([], [])
