@@ -209,10 +209,19 @@ class Arbitrator(abc.ABC):
     #: through the forward model, ``agent.mpc.horizon`` model passes): the forced-response test
     #: (:mod:`apac_mj.run.forced_response`) charges the rule their time before its decision is ready.
     needs_habit_probe: bool = False
+    #: Set by the episode loop before every decision: whether the actor explores at this step (training). A rule
+    #: that re-explores its choice does so only then.
+    exploring: bool = False
 
     @abc.abstractmethod
     def use_habit(self, ctx: ArbitrationContext) -> Decision:
         """The decision for every member at the step ``ctx`` describes."""
+
+    def plan_gains(self, agent: Any, ctx: ArbitrationContext, plan: "Proposal", planner: "Planner"
+                   ) -> np.ndarray | None:
+        """``[E, K]`` the rule's own estimate of what ``plan`` gained over the habit after each iteration. Default:
+        None, the planner's imagined gain (``plan.best_values - plan.habit_value``)."""
+        return None
 
     def observe(self, info: StepInfo, mask: np.ndarray, adapt: bool) -> None:
         """After every step: learn from ``info`` for the members in ``mask`` (``adapt``: update the running

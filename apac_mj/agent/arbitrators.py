@@ -505,20 +505,19 @@ class VisionAwareArbitrator(Arbitrator):
         """Whether the base rule reads the habit's probe (this rule adds none)."""
         return self.base.needs_habit_probe
 
-    @property
-    def plan_gains(self) -> object:
+    def plan_gains(self, agent: WorldModel, ctx: ArbitrationContext, plan: Proposal, planner: Planner
+                   ) -> np.ndarray | None:
         """The base rule's own estimate of a plan's gain (None: the planner's imagined one)."""
-        return getattr(self.base, "plan_gains", None)
+        return self.base.plan_gains(agent, ctx, plan, planner)
 
     @property
     def exploring(self) -> bool:
-        """Whether the actor explores this step, passed on to a base rule that re-explores."""
-        return bool(getattr(self.base, "exploring", False))
+        """Whether the actor explores this step, passed on to the base rule."""
+        return self.base.exploring
 
     @exploring.setter
     def exploring(self, value: bool) -> None:
-        if hasattr(self.base, "exploring"):
-            self.base.exploring = value
+        self.base.exploring = value
 
     def use_habit(self, ctx: ArbitrationContext) -> Decision:
         decision = self.base.use_habit(ctx)

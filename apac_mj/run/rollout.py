@@ -243,8 +243,7 @@ def select_action(agent: Policy, arbitrator: Arbitrator, ctx: ArbitrationContext
     only when some member's habit acts: a kind that always plans is not charged for a habit it never uses."""
     state = ctx.state
     t0 = time.perf_counter()
-    if hasattr(arbitrator, "exploring"):  # a rule that re-explores does so only where the actor explores (training)
-        arbitrator.exploring = bool(explore)
+    arbitrator.exploring = bool(explore)  # a rule that re-explores does so only where the actor explores
     decision = arbitrator.use_habit(ctx)
     if not isinstance(decision, tuple) or len(decision) not in (2, 3):
         raise ValueError(f"{type(arbitrator).__name__}.use_habit must return a Decision(habit [E] bools, inputs), "
@@ -271,9 +270,9 @@ def select_action(agent: Policy, arbitrator: Arbitrator, ctx: ArbitrationContext
     bound = agent.sizes.action_bound
     iterations = plan.iterations.cpu().numpy() * ~habit.cpu().numpy()
     seconds = _shares(common_seconds, plan_seconds, iterations)
-    measure = getattr(arbitrator, "plan_gains", None)  # a rule's own estimate of a plan's gain (the graded rule)
-    gains = None if plan.habit_value is None else (plan.best_values - plan.habit_value[:, None]).numpy() \
-        if measure is None else measure(agent, ctx, plan, planner)
+    gains = None if plan.habit_value is None else arbitrator.plan_gains(agent, ctx, plan, planner)
+    if plan.habit_value is not None and gains is None:  # the planner's imagined gain
+        gains = (plan.best_values - plan.habit_value[:, None]).numpy()
     return Choice(proposal.clamp(-bound, bound), Decision(habit, dict(decision.inputs), decision.iterations),
                   iterations, seconds, gains)
 
