@@ -19,6 +19,8 @@ from apac_mj.util.overrides import MAX_SEEDS, SEED_LIMIT
 
 #: The trained networks, in the paper's terms (the target actor and critic follow their online networks).
 TRAINED_NETWORKS = ("actor", "critic", "forward_model", "inverse_model")
+#: The learners a lesion can freeze (AgentConfig.frozen) and their networks.
+FREEZABLE = {"habit": ("actor", "critic"), "model": ("forward_model", "inverse_model", "dynamics_model")}
 #: The numeric precisions a run computes in; a request may also say "auto" (apac_mj.agent.precision).
 PRECISIONS = ("fp32", "bf16")
 PRECISION_REQUESTS = (*PRECISIONS, "auto")
@@ -157,6 +159,14 @@ class AgentConfig:
     #: the online actor (standard DDPG, default).
     act_with_target_actor: bool = False
 
+    # -- lesions (issue 44: which controller carries which part of adaptation) ------------------------------
+    #: Learners that stop learning from training episode ``frozen_from_episode`` on (:data:`FREEZABLE`):
+    #: "habit" (the actor and the critic, with their target networks) and/or "model" (the forward, inverse and
+    #: dynamics models). They still act and predict; their weights stay as they were. () = none (the paper).
+    frozen: tuple[str, ...] = ()
+    #: The member's training episode from which the ``frozen`` learners stop learning (0: from the first).
+    frozen_from_episode: int = 0
+
     # -- reduced precision ------------------------------------------------------
     #: Under ``precision = "bf16"``, the networks whose matrix products run in bf16 (a target network as
     #: its online one); the others stay fp32. No effect in fp32. All four by default; leaving the inverse
@@ -196,6 +206,8 @@ class AgentConfig:
             v = getattr(self, name)
             if v is not None and (isinstance(v, bool) or not low <= v <= high):
                 raise ValueError(f"{name} must be in [{low:g}, {high:g}], got {v!r}")
+        if any(n not in FREEZABLE for n in self.frozen) or len(set(self.frozen)) != len(self.frozen):
+            raise ValueError(f"frozen must be distinct names from {tuple(FREEZABLE)}, got {list(self.frozen)}")
         unknown = [n for n in self.bf16_networks if n not in TRAINED_NETWORKS]
         if unknown or len(set(self.bf16_networks)) != len(self.bf16_networks):
             raise ValueError(f"bf16_networks must be distinct names from {TRAINED_NETWORKS}, "
@@ -213,7 +225,7 @@ class AgentConfig:
 _RANGES = (("action_scale", 1e-6, 360.0), ("babbling_scale", 0.0, 360.0), ("ou_sigma", 0.0, 360.0),
            ("ou_sigma_initial", 0.0, 360.0), ("ou_theta", 0.0, 10.0), ("ou_sigma_anneal_episodes", 0, 10**9),
            ("weight_decay", 0.0, 1.0), ("feasibility_weight", 0.0, 1e6), ("habit_distillation_weight", 0.0, 1e6),
-           ("plane_scale", 1e-6, 1e4), ("planning_episodes", 0, 10**9), ("habit_first_steps", 0, 10**9),
+           ("plane_scale", 1e-6, 1e4), ("planning_episodes", 0, 10**9), ("habit_first_steps", 0, 10**9), ("frozen_from_episode", 0, 10**9),
            ("babbling_episodes", 0, 10**9), ("updates_per_step", 1, 10**3), ("batch_size", 1, 10**8),
            ("replay_size", 1, 10**10), ("inverse_updates", 0, 10**3), ("inverse_weight_decay", 0.0, 1.0))
 
@@ -321,7 +333,9 @@ ADDED = {"bf16_networks": list(TRAINED_NETWORKS),
          # the command, but their networks predate the velocity inputs and cannot be loaded any more)
          "executed_action": "joint_change",
          # issue 41: the inverse model's own budget; before it, one step and the agent's weight_decay
-         "inverse_updates": 0, "inverse_weight_decay": None}
+         "inverse_updates": 0, "inverse_weight_decay": None,
+         # issue 44: lesions; every release before it learned with every learner
+         "frozen": [], "frozen_from_episode": 0}
 
 #: Fields added to a parameter table after it was released: ``table -> field -> f(agent dict)``, the value that
 #: behaves as that release did. Issue 28's ``mpc`` table had no ``model_weight_decay`` (its dynamics model was
@@ -355,6 +369,17 @@ def migrate(d: dict[str, Any]) -> dict[str, Any]:
         for name, cls in rules.tables().items():
             agent.setdefault(name, {f.name: _json(getattr(cls(), f.name)) for f in dataclasses.fields(cls)})
     return {**d, "agent": agent} if "agent" in d else dict(d)
+
+
+def migrate_study(record: dict[str, Any]) -> dict[str, Any]:
+    """A study's protocol record (protocol.json, its ``run`` a TrainConfig as ``dataclasses.asdict`` writes it)
+    with the agent fields added since (:data:`ADDED`) at the value the study's release behaved as, so that a study
+    made before a field was added resumes."""
+    run = record.get("run")
+    if not isinstance(run, dict) or not isinstance(run.get("agent"), dict):
+        return dict(record)
+    agent = {**copy.deepcopy(ADDED), **run["agent"]}
+    return {**record, "run": {**run, "agent": agent}}
 
 
 def _json(v: Any) -> Any:

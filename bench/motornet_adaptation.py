@@ -129,7 +129,8 @@ def protocol(env, policy, trials: pd.DataFrame, seed: int, lr: float) -> pd.Data
         out["loss"].backward()
         opt.step()
         rows.append({"seed": seed, "trial": t.trial, "block": t.block, "field": t.field, "channel": t.channel,
-                     "catch": t.catch, **_measures(out, bool(t.channel)), "habit_share": math.nan})
+                     "catch": t.catch, **_measures(out, bool(t.channel)), "habit_share": math.nan,
+                     "direction": -1})  # every trial all 8 directions, averaged: one baseline for all
     return pd.DataFrame(rows, columns=list(TRIAL_COLUMNS))
 
 

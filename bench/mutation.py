@@ -32,7 +32,8 @@ COPIED = ("apac_mj", "assets", "tasks", "tests", "bench", "docs", "scripts")
 #: Tests that run a training or a subprocess: they compare the code with itself (a resumed run with an
 #: uninterrupted one) or check the command line; left out so that every mutant runs in seconds.
 SLOW = ("not killed_and_resumed and not resume_ and not before_anything_is_written and not bench "
-        "and not checkpointed and not recordings and not command_line and not record_labels and not being_trained")
+        "and not checkpointed and not recordings and not command_line and not record_labels and not being_trained "
+        "and not end_to_end and not every_kind_trains and not extended_run and not metrics_carry")
 #: name -> (files mutated, test files run against them). Order: the report's statistics last (issue 41).
 MODULES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "planner": (("apac_mj/agent/planner.py",),
@@ -49,8 +50,11 @@ MODULES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "stats": (("apac_mj/report/stats.py",), ("tests/test_stats_coverage.py", "tests/test_stats_known.py",
                                              "tests/test_doc_numbers.py", "tests/test_dynamics_bench.py")),
     "two_state": (("apac_mj/report/two_state.py",), ("tests/test_two_state.py",)),
-    "hardwick": (("apac_mj/report/hardwick.py",), ("tests/test_hardwick_model.py", "tests/test_hardwick_human.py")),
+    "hardwick": (("apac_mj/report/hardwick.py",), ("tests/test_hardwick_model.py", "tests/test_hardwick_human.py",
+                                                  "tests/test_hardwick_report.py")),
     "signals": (("apac_mj/suite/signals.py",), ("tests/test_signals.py",)),
+    "trials": (("apac_mj/suite/trials.py",), ("tests/test_trials.py",)),
+    "adaptation": (("apac_mj/experiments/adaptation.py", "apac_mj/report/adaptation.py"), ("tests/test_adaptation.py",)),
 }
 #: mutmut's outcomes that count as killed (a test failed, or the mutant hung past the timeout).
 KILLED = ("killed", "timeout")

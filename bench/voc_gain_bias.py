@@ -1,6 +1,7 @@
 """How biased is each estimate of the graded rule's gain of planning, against MuJoCo's own physics?
 
     python bench/voc_gain_bias.py RUN_DIR [--targets 10] [--out results/voc_gain/bias.csv]
+    python bench/voc_gain_bias.py --combine A.csv B.csv [--out results/voc_gain/all.csv]
 
 The measurement of the fidelity audit (§3.1): at every decision of frozen episodes on the run's grid targets, each
 member plans from its state with its own networks at the full budget (a copy of the run's ``MPCPlanner``, its warm
@@ -23,8 +24,11 @@ arrival, ``gamma^H Q(s_H, pi(s_H))`` by the member's critic) with every step tak
 * ``other_member``: the same two sequences imagined by another member's dynamics model and critic (needs two
   members or more; a diagnostic: a run's members do not share networks).
 
-One row per (decision, member, k) to ``--out``; the summary (per estimate and ``k``: the mean bias with 1.96
-standard errors over the decisions, and per seed) is printed and written beside it (``*_summary.csv``).
+One row per (decision, member, k) to ``--out``; the summary (per estimate and ``k``: the mean bias with its 95%
+intervals over the decisions, the episodes and the seeds, and per seed) is printed and written beside it
+(``*_summary.csv``), and the decomposition of the imagined and held-out biases into the error on the chosen
+sequence and on the habit's, each split into the distance part and the critic's terminal value
+(``*_decomposition.csv``). ``--combine A.csv B.csv ...`` summarizes the rows of runs of disjoint seeds as one.
 """
 from __future__ import annotations
 
@@ -41,8 +45,9 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import ceiling  # noqa: E402  (bench/ceiling.py: the environment's own physics as a model)
 
-from apac_mj.agent.arbitrators import AgentView, critic_advantage, heldout_gains  # noqa: E402
+from apac_mj.agent.arbitrators import AgentView, HeldOutView, critic_advantage, heldout_gains  # noqa: E402
 from apac_mj.agent.networks import DynamicsHeads  # noqa: E402
+from apac_mj.report.stats import seed_interval  # noqa: E402
 from apac_mj.run.build import episode_loop, load_run  # noqa: E402
 from apac_mj.run.evaluate import eval_env, evaluation_targets  # noqa: E402
 from apac_mj.run.run_dir import RunDir  # noqa: E402
@@ -51,6 +56,14 @@ from apac_mj.types import Arbitrator  # noqa: E402
 from apac_mj.util.progress import progress_iter  # noqa: E402
 
 ESTIMATES = ("imagined", "heldout", "forward", "advantage", "realized", "other_member")
+
+
+class NoTerminalView(AgentView):
+    """An agent (or a view) whose critic values every state 0: a rollout through it is the distance part alone."""
+
+    @torch.no_grad()
+    def value(self, state: torch.Tensor) -> torch.Tensor:
+        return torch.zeros(state.shape[:-1], device=state.device)
 
 
 class ForwardModelView(AgentView):
@@ -123,15 +136,31 @@ class Measuring(Arbitrator):
         heldout = heldout_gains(agent, planner, state, best).cpu().numpy() if held else np.full((E, K), np.nan)
         forward = self.valued(ForwardModelView(agent), planner, state, seqs)
         other = self.other_member(agent, planner, state, seqs) if E > 1 else np.full((E, K), np.nan)
-        truth, realized, total = self.truth(agent, seqs, gamma, state)
+        truth, realized, total, distance = self.truth(agent, seqs, gamma, state)
+        parts = {"true": (total, distance), "imagined": self.sides(agent, planner, state, seqs)}
+        if held:
+            parts["heldout"] = self.sides(HeldOutView(agent), planner, state, seqs)
         for k in np.flatnonzero(self.running):
             for i in range(K):
-                self.rows.append({"seed": self.loop.env.seeds[k], "target": self.target_index, "step": int(ctx.step[k]),
-                                  "k": i + 1, "G": truth[k, i], "imagined": imagined[k, i], "heldout": heldout[k, i],
-                                  "forward": forward[k, i], "advantage": advantage[k, i], "realized": realized[k, i],
-                                  "other_member": other[k, i], "true_best": total[k, i + 1],
-                                  "true_habit": total[k, 0], "imagined_best": float(plan.best_values[k, i]),
-                                  "imagined_habit": float(plan.habit_value[k])})
+                row = {"seed": self.loop.env.seeds[k], "target": self.target_index, "step": int(ctx.step[k]),
+                       "k": i + 1, "G": truth[k, i], "imagined": imagined[k, i], "heldout": heldout[k, i],
+                       "forward": forward[k, i], "advantage": advantage[k, i], "realized": realized[k, i],
+                       "other_member": other[k, i], "imagined_best": float(plan.best_values[k, i]),
+                       "imagined_habit": float(plan.habit_value[k])}
+                for name, (value, dist) in parts.items():
+                    for side, b in (("best", i + 1), ("habit", 0)):
+                        row.setdefault(f"{name}_{side}", float(value[k, b]))
+                        row[f"{name}_{side}_distance"] = float(dist[k, b])
+                self.rows.append(row)
+
+    @staticmethod
+    def sides(view: Any, planner: Any, state: torch.Tensor, seqs: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
+        """``[E, 1 + K]`` each sequence's value through ``view``'s imagination (the habit's first) and its distance
+        part (the discounted -distance until arrival; the rest is the critic's terminal value)."""
+        u = seqs.to(state.device)
+        v, _, _ = planner.rollout(view, state, u)
+        d, _, _ = planner.rollout(NoTerminalView(view), state, u)
+        return v.cpu().numpy(), d.cpu().numpy()
 
     @staticmethod
     def valued(view: Any, planner: Any, state: torch.Tensor, seqs: torch.Tensor) -> np.ndarray:
@@ -150,7 +179,7 @@ class Measuring(Arbitrator):
 
     def truth(self, agent: Any, seqs: torch.Tensor, gamma: float, state: torch.Tensor) -> tuple[np.ndarray, ...]:
         """``[E, K]`` the true gain of each best sequence over the habit's, the realized one-step estimate, and
-        ``[E, 1 + K]`` each sequence's true value (the habit's first)."""
+        ``[E, 1 + K]`` each sequence's true value (the habit's first) and its distance part."""
         E, B, H = seqs.shape[:3]
         values, ends, alive = np.zeros((E, B)), np.zeros((E, B, state.shape[1])), np.zeros((E, B))
         firsts, first_alive, first_d = np.zeros((E, B, state.shape[1])), np.zeros((E, B)), np.zeros((E, B))
@@ -169,7 +198,7 @@ class Measuring(Arbitrator):
         q_now = agent.value(state[:, None]).cpu().numpy()
         total = values + gamma ** H * alive * q_end
         realized = -first_d + gamma * first_alive * q_first - q_now
-        return total[:, 1:] - total[:, :1], realized[:, 1:], total
+        return total[:, 1:] - total[:, :1], realized[:, 1:], total, values
 
 
 def run(run_dir: Path, targets_per_member: int, progress: bool = True) -> pd.DataFrame:
@@ -208,10 +237,28 @@ def clustered_se(err: pd.Series, cluster: pd.Series) -> float:
     return float(np.sqrt((centred ** 2).sum()) / len(err))
 
 
+def spread(err: pd.Series, g: pd.DataFrame) -> dict[str, Any]:
+    """The mean of ``err`` (one value per decision of ``g``) and its 95% intervals at three levels: 1.96 standard
+    errors over the decisions (as the audit; a lower bound), over the episodes (cluster-robust: the decisions of
+    one episode are correlated), and the report's Student-t over the seeds' means (:func:`seed_interval`; NaN
+    with fewer than 3 seeds). ``seed_sd``, the spread of the seeds' means, against ``within_seed_se``, the root
+    mean square of each seed's episode-clustered standard error: a spread well above it is an offset fixed per
+    seed (its trained networks), which the decision and episode intervals do not see."""
+    per_seed = err.groupby(g["seed"]).mean()
+    lo, hi = seed_interval(per_seed.to_numpy())
+    within = [clustered_se(e, g.loc[e.index, "target"]) for _, e in err.groupby(g["seed"])]
+    return {"bias": err.mean(), "seed_mean": per_seed.mean(),
+            "bias_half_width": 1.96 * err.std(ddof=1) / np.sqrt(len(g)),
+            "bias_half_width_episodes": 1.96 * clustered_se(err, g["seed"] * 10**6 + g["target"]),
+            "seed_lo": lo, "seed_hi": hi, "seeds": len(per_seed),
+            "bias_per_seed": " ".join(f"{v:+.2f}" for v in per_seed),
+            "seed_sd": per_seed.std(ddof=1), "within_seed_se": float(np.sqrt(np.mean(np.square(within))))}
+
+
 def summary(df: pd.DataFrame) -> pd.DataFrame:
-    """Per estimate and ``k``: decisions, mean truth, mean estimate, bias (mean estimate - truth) with 1.96 standard
-    errors over the decisions (as the audit; a lower bound) and over the episodes (cluster-robust: the decisions
-    of one episode are correlated), the per-seed biases, and how often the truth and the estimate were negative."""
+    """Per estimate and ``k``: decisions, mean truth, mean estimate, bias (mean estimate - truth) with its
+    intervals over the decisions, the episodes and the seeds (:func:`spread`), the per-seed biases, and how often
+    the truth and the estimate were negative."""
     out = []
     for name in ESTIMATES:
         for k, g in df.groupby("k"):
@@ -219,46 +266,71 @@ def summary(df: pd.DataFrame) -> pd.DataFrame:
             if g.empty:
                 continue
             err = g[name] - g["G"]
-            per_seed = err.groupby(g["seed"]).mean()
             out.append({"estimate": name, "k": k, "decisions": len(g), "mean_G": g["G"].mean(),
-                        "mean_estimate": g[name].mean(), "bias": err.mean(),
-                        "bias_half_width": 1.96 * err.std(ddof=1) / np.sqrt(len(g)),
-                        "bias_half_width_episodes": 1.96 * clustered_se(err, g["seed"] * 10**6 + g["target"]),
-                        "bias_per_seed": " ".join(f"{v:+.2f}" for v in per_seed),
+                        "mean_estimate": g[name].mean(), **spread(err, g),
                         "rmse": float(np.sqrt((err ** 2).mean())), "G_negative": (g["G"] < 0).mean(),
                         "estimate_negative": (g[name] < 0).mean()})
     return pd.DataFrame(out)
 
 
+def part_errors(g: pd.DataFrame, name: str, side: str) -> dict[str, pd.Series]:
+    """Per decision: how far ``name``'s value of one sequence (``side``: best or habit) lies from its truth, in
+    all (``total``) and split into the distance part and the critic's terminal value (where the rows have them)."""
+    out = {"total": g[f"{name}_{side}"] - g[f"true_{side}"]}
+    if f"{name}_{side}_distance" in g and f"true_{side}_distance" in g:
+        out["distance"] = g[f"{name}_{side}_distance"] - g[f"true_{side}_distance"]
+        out["terminal"] = out["total"] - out["distance"]
+    return out
+
+
 def decomposition(df: pd.DataFrame) -> pd.DataFrame:
-    """Per ``k``: how far the imagined value of the chosen sequence and of the habit's lie from their truth (the
-    imagined gain's bias is the first minus the second), with 1.96 standard errors over the decisions."""
+    """Per estimate valued by sequences (imagined, heldout) and ``k``: how far its value of the chosen sequence
+    (``best``) and of the habit's (``habit``) lie from their truth, and their difference (``gain``: the estimate's
+    bias), each in all and split into the distance part and the terminal value, with :func:`spread`'s
+    intervals."""
     out = []
-    for k, g in df.groupby("k"):
-        row: dict[str, Any] = {"k": k}
-        for side in ("best", "habit"):
-            err = g[f"imagined_{side}"] - g[f"true_{side}"]
-            row[f"{side}_error"], row[f"{side}_half_width"] = err.mean(), 1.96 * err.std(ddof=1) / np.sqrt(len(g))
-        out.append(row)
+    for name in ("imagined", "heldout"):
+        if f"{name}_best" not in df:
+            continue
+        for k, g in df.groupby("k"):
+            g = g[np.isfinite(g[f"{name}_best"])]
+            best, habit = part_errors(g, name, "best"), part_errors(g, name, "habit")
+            for part in best:
+                for side, err in (("best", best[part]), ("habit", habit[part]), ("gain", best[part] - habit[part])):
+                    out.append({"estimate": name, "k": k, "side": side, "part": part, **spread(err, g)})
     return pd.DataFrame(out)
+
+
+def combine(paths: Sequence[Path]) -> pd.DataFrame:
+    """The rows of several measurements (``--out`` files of runs with disjoint seeds) as one."""
+    frames = [pd.read_csv(p) for p in paths]
+    seeds = [s for f in frames for s in f["seed"].unique()]
+    if len(seeds) != len(set(seeds)):
+        raise ValueError(f"the measurements share a seed ({sorted(seeds)}): combine runs of disjoint seeds")
+    return pd.concat(frames, ignore_index=True)
 
 
 def main(argv: Sequence[str] | None = None) -> pd.DataFrame:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("run", type=Path, help="a trained run of kind apac_voc (or any kind with the mpc planner)")
+    p.add_argument("run", type=Path, nargs="?", help="a trained run of kind apac_voc (or any with the mpc planner)")
     p.add_argument("--targets", type=int, default=10, help="grid targets per member (default 10)")
     p.add_argument("--out", type=Path, default=Path("results/voc_gain/bias.csv"))
+    p.add_argument("--combine", type=Path, nargs="+", metavar="CSV",
+                   help="instead of measuring a run: summarize the rows of these measurements (runs of disjoint "
+                        "seeds) as one, written to --out")
     p.add_argument("--no-progress", action="store_true")
     args = p.parse_args(argv)
+    if (args.run is None) == (args.combine is None):
+        p.error("give a run to measure or --combine CSV..., not both")
     torch.set_num_threads(1)
-    df = run(args.run, args.targets, not args.no_progress)
+    df = combine(args.combine) if args.combine else run(args.run, args.targets, not args.no_progress)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     df.to_csv(args.out, index=False)
     table = summary(df)
     table.to_csv(args.out.with_name(args.out.stem + "_summary.csv"), index=False)
     parts = decomposition(df)
     parts.to_csv(args.out.with_name(args.out.stem + "_decomposition.csv"), index=False)
-    with pd.option_context("display.width", 200, "display.max_columns", 20):
+    with pd.option_context("display.width", 250, "display.max_columns", 20):
         print(table.round(3).to_string(index=False))
         print(parts.round(3).to_string(index=False))
     return table

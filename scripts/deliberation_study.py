@@ -7,6 +7,11 @@ Three steps (each resumable; runs under ``--out``, ignored by git; tables and th
     python scripts/deliberation_study.py test --out results/deliberation --docs docs/results/deliberation --limit 20
     python scripts/deliberation_study.py report --docs docs/results/deliberation
 
+More seeds without retraining the first: ``train`` and ``test`` them under another ``--out`` and ``--docs``
+(``--drop 'kind:variant,...'`` leaves variants out so both parts test the same rows), then ``combine --parts
+first.csv,second.csv --docs DOCS`` writes one ``per_seed.csv`` (refused: a seed in two parts, or parts that
+test different rows) for ``report``, which also writes ``paired.csv`` (per-seed differences, :data:`PAIRS`).
+
 ``test`` runs each trained run's frozen networks on the 100 angle-grid targets per seed (``--limit``: a spread of
 fewer) in the world that does not wait (the trained one) and in one that waits (``time_scale`` 0, same deadline);
 SPAC-MPC also at test-time budgets of 1 and 2 iterations, APAC-VOC's networks also as their habit alone and always
@@ -111,22 +116,35 @@ def _per_seed(rows: list[dict[str, Any]], **labels: Any) -> list[dict[str, Any]]
     return out
 
 
-def _variants(kind: str, K: int) -> list[tuple[str, str | None, int | None, tuple[str, ...]]]:
+def _variants(kind: str, K: int, drop: frozenset[tuple[str, str]] = frozenset()
+              ) -> list[tuple[str, str | None, int | None, tuple[str, ...]]]:
     """(variant, arbitrator override, test-time iterations, worlds) to test a trained ``kind`` under: its own
     rule in both worlds; SPAC-MPC also at 1 and 2 iterations, APAC-VOC's networks also as their habit alone and
-    always planning at 1 and K iterations, in the world that does not wait (the compute front)."""
+    always planning at 1 and K iterations, in the world that does not wait (the compute front). ``drop``: the
+    (kind, variant) pairs left out."""
     both, no_wait = ("no_wait", "waits"), ("no_wait",)
     if kind == "ddpg":
-        return [("habit", None, None, both)]
-    if kind == "spac_mpc":
-        return [(f"plan k={k}", None, k, both if k == K else no_wait) for k in sorted({1, 2, K})]
-    if kind == "apac_voc":
-        return [("graded", None, None, both), ("habit", "AlwaysHabit", None, no_wait),
-                *((f"plan k={k}", "AlwaysPlan", k, no_wait) for k in sorted({1, K}))]
-    return [("delta rule", None, None, both)]
+        out = [("habit", None, None, both)]
+    elif kind == "spac_mpc":
+        out = [(f"plan k={k}", None, k, both if k == K else no_wait) for k in sorted({1, 2, K})]
+    elif kind == "apac_voc":
+        out = [("graded", None, None, both), ("habit", "AlwaysHabit", None, no_wait),
+               *((f"plan k={k}", "AlwaysPlan", k, no_wait) for k in sorted({1, K}))]
+    else:
+        out = [("delta rule", None, None, both)]
+    return [v for v in out if (kind, v[0]) not in drop]
 
 
-def test_run(run_path: Path, limit: int | None, worlds: dict[str, float]) -> list[dict[str, Any]]:
+def parse_drop(text: str) -> frozenset[tuple[str, str]]:
+    """``"spac_mpc:plan k=2,apac_voc:plan k=1"`` as {(kind, variant)}; a part without a colon is refused."""
+    pairs = [part.split(":", 1) for part in text.split(",") if part.strip()]
+    if any(len(p) != 2 for p in pairs):
+        raise ValueError(f"--drop wants kind:variant[,kind:variant...], got {text!r}")
+    return frozenset((k.strip(), v.strip()) for k, v in pairs)
+
+
+def test_run(run_path: Path, limit: int | None, worlds: dict[str, float],
+             drop: frozenset[tuple[str, str]] = frozenset()) -> list[dict[str, Any]]:
     """Every variant of one trained run in every world (``name -> time_scale``): per-seed rows."""
     from apac_mj.agent import arbitration
     from apac_mj.run.build import episode_loop, load_run
@@ -141,7 +159,7 @@ def test_run(run_path: Path, limit: int | None, worlds: dict[str, float]) -> lis
     out = []
     for world, scale in worlds.items():
         world_spec = spec.replace(deliberation={"deadline_ms": spec.deliberation.deadline_ms, "time_scale": scale})
-        for variant, rule, k, tested in _variants(cfg.agent.kind, K):
+        for variant, rule, k, tested in _variants(cfg.agent.kind, K, drop):
             if world not in tested:
                 continue
             env = eval_env(cfg, world_spec, lengths, occluded=False)
@@ -157,12 +175,67 @@ def test_run(run_path: Path, limit: int | None, worlds: dict[str, float]) -> lis
     return out
 
 
-def test_all(out: Path, docs: Path, kinds: list[str], limit: int | None) -> None:
+def test_all(out: Path, docs: Path, kinds: list[str], limit: int | None,
+             drop: frozenset[tuple[str, str]] = frozenset()) -> None:
     rows = []
     docs.mkdir(parents=True, exist_ok=True)
     for kind in kinds:  # the table written after each kind: a cut-short test keeps what it finished
-        rows += test_run(out / kind, limit, {"no_wait": 1.0, "waits": 0.0})
+        rows += test_run(out / kind, limit, {"no_wait": 1.0, "waits": 0.0}, drop)
         pd.DataFrame(rows, columns=list(COLUMNS)).round(4).to_csv(docs / "per_seed.csv", index=False)
+
+
+def combine(parts: list[pd.DataFrame]) -> pd.DataFrame:
+    """Per-seed tables of disjoint seed sets as one (the first part's row order, seeds ascending within a
+    variant). Refused: a seed in two parts, or parts that do not test the same (kind, variant, world) rows."""
+    groups = [set(map(tuple, p[["kind", "variant", "world"]].drop_duplicates().to_numpy())) for p in parts]
+    if any(g != groups[0] for g in groups):
+        odd = sorted(set.union(*groups) - set.intersection(*groups))
+        raise ValueError(f"the parts test different variants: {odd}")
+    seen: set[int] = set()
+    for p in parts:
+        overlap = seen & set(p.seed.astype(int))
+        if overlap:
+            raise ValueError(f"seeds {sorted(overlap)} are in more than one part")
+        seen |= set(p.seed.astype(int))
+    df = pd.concat(parts, ignore_index=True)
+    order = {g: i for i, g in enumerate(dict.fromkeys(map(tuple, parts[0][["kind", "variant", "world"]].to_numpy())))}
+    key = df[["kind", "variant", "world"]].apply(lambda r: order[tuple(r)], axis=1)
+    return df.assign(_k=key).sort_values(["_k", "seed"], kind="stable").drop(columns="_k").reset_index(drop=True)
+
+
+#: The paired comparisons ``paired.csv`` reports: (name, a, b), each (kind, variant, world); a - b by seed.
+PAIRS = (
+    ("graded - own networks planning at k=4", ("apac_voc", "graded", "no_wait"), ("apac_voc", "plan k=4", "no_wait")),
+    ("graded - own networks planning at k=1", ("apac_voc", "graded", "no_wait"), ("apac_voc", "plan k=1", "no_wait")),
+    ("graded - own networks' habit alone", ("apac_voc", "graded", "no_wait"), ("apac_voc", "habit", "no_wait")),
+    ("graded - SPAC-MPC k=1", ("apac_voc", "graded", "no_wait"), ("spac_mpc", "plan k=1", "no_wait")),
+    ("graded - SPAC-MPC k=4", ("apac_voc", "graded", "no_wait"), ("spac_mpc", "plan k=4", "no_wait")),
+    ("DDPG: waits - no wait", ("ddpg", "habit", "waits"), ("ddpg", "habit", "no_wait")),
+    ("SPAC-MPC k=4: waits - no wait", ("spac_mpc", "plan k=4", "waits"), ("spac_mpc", "plan k=4", "no_wait")),
+    ("APAC-MPC: waits - no wait", ("apac_mpc", "delta rule", "waits"), ("apac_mpc", "delta rule", "no_wait")),
+    ("APAC-VOC graded: waits - no wait", ("apac_voc", "graded", "waits"), ("apac_voc", "graded", "no_wait")),
+)
+
+
+def paired(per_seed: pd.DataFrame, pairs: tuple = PAIRS,
+           columns: tuple[str, ...] = ("success", "decision_ms_per_step")) -> pd.DataFrame:
+    """Per-seed differences a - b (:func:`apac_mj.report.stats.paired_difference`: the report's t interval of the
+    differences where both have the same seeds) and the ratio of the means; a pair with a missing side is skipped."""
+    from apac_mj.report.stats import paired_difference
+
+    rows = []
+    for name, a, b in pairs:
+        sides = [per_seed[(per_seed.kind == s[0]) & (per_seed.variant == s[1]) & (per_seed.world == s[2])]
+                 .set_index("seed") for s in (a, b)]
+        if any(s.empty for s in sides):
+            continue
+        for col in columns:
+            diff, lo, hi, is_paired = paired_difference(sides[0][col], sides[1][col])
+            wins = int((sides[0][col] > sides[1][col].reindex(sides[0].index)).sum())
+            rows.append({"comparison": name, "metric": col, "seeds": len(sides[0]), "difference": diff, "lo": lo,
+                         "hi": hi, "paired": is_paired, "a_higher_seeds": wins,
+                         "ratio": sides[0][col].mean() / sides[1][col].mean()})
+    return pd.DataFrame(rows).round(3)
 
 
 def summarize(per_seed: pd.DataFrame) -> pd.DataFrame:
@@ -241,7 +314,7 @@ def _colour(kind: str) -> str:
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("step", choices=("train", "test", "report"))
+    ap.add_argument("step", choices=("train", "test", "combine", "report"))
     ap.add_argument("--out", type=Path, default=Path("results/deliberation"))
     ap.add_argument("--docs", type=Path, default=Path("docs/results/deliberation"))
     ap.add_argument("--kinds", default=",".join(KINDS))
@@ -249,19 +322,26 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--episodes", type=int, default=100)
     ap.add_argument("--babbling", type=int, default=30)
     ap.add_argument("--limit", type=int, default=None, help="targets per seed in the test (default: all 100)")
+    ap.add_argument("--drop", default="", help="test: variants left out, 'kind:variant,...'")
+    ap.add_argument("--parts", default="", help="combine: per-seed tables of disjoint seeds, comma-separated")
     a = ap.parse_args(argv)
     kinds = a.kinds.split(",")
     if a.step == "train":
         train_all(a.out, kinds, tuple(int(s) for s in a.seeds.split(",")), a.episodes, a.babbling)
     elif a.step == "test":
-        test_all(a.out, a.docs, kinds, a.limit)
+        test_all(a.out, a.docs, kinds, a.limit, parse_drop(a.drop))
+    elif a.step == "combine":
+        a.docs.mkdir(parents=True, exist_ok=True)
+        combine([pd.read_csv(p) for p in a.parts.split(",")]).to_csv(a.docs / "per_seed.csv", index=False)
     else:
         summary = summarize(pd.read_csv(a.docs / "per_seed.csv"))
         summary.to_csv(a.docs / "summary.csv", index=False)
         figure(summary, a.docs / "front.png")
         placed = pd.concat([place(summary, w) for w in ("no_wait", "waits")])
         placed.to_csv(a.docs / "graded_on_front.csv", index=False)
-        print(summary.to_string(), placed.to_string(), sep="\n\n", file=sys.stdout)
+        pairs = paired(pd.read_csv(a.docs / "per_seed.csv"))
+        pairs.to_csv(a.docs / "paired.csv", index=False)
+        print(summary.to_string(), placed.to_string(), pairs.to_string(), sep="\n\n", file=sys.stdout)
 
 
 if __name__ == "__main__":

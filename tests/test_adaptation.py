@@ -45,16 +45,18 @@ def test_trial_table_adaptation_and_signs_by_hand():
         ad.trial_table(m.drop(columns="peak_speed"), 100.0)
 
 
-def _table(block_values: list[tuple[str, str, float]]) -> pd.DataFrame:
+def _table(block_values: list[tuple], directions: list[int] | None = None) -> pd.DataFrame:
     """A per-trial table from (block, type, value) rows: the value is the lateral error, or on a channel trial the
-    adaptation."""
+    adaptation; ``directions``: each row's centre-out direction (default -1: targets anywhere)."""
     rows = []
-    for i, (block, kind, v) in enumerate(block_values):
+    directions = directions or [-1] * len(block_values)
+    for i, ((block, kind, v), d) in enumerate(zip(block_values, directions)):
         channel = kind == "channel"
         field = {"field": 1.0, "reverse": -1.0}.get(kind, 0.0)
         rows.append({"seed": 0, "trial": i, "block": block, "field": field, "channel": channel,
                      "catch": kind == "catch", "lateral_error": math.nan if channel else v,
-                     "adaptation": v if channel else math.nan, "habit_share": 0.25 if block == "channel" else 1.0})
+                     "adaptation": v if channel else math.nan, "habit_share": 0.25 if block == "channel" else 1.0,
+                     "direction": d})
     return pd.DataFrame(rows, columns=list(ad.TRIAL_COLUMNS))
 
 
@@ -73,6 +75,24 @@ def test_signatures_by_hand():
     assert s["savings"] == pytest.approx(5.0 - 3.0)
     assert s["adaptation_late"] == pytest.approx(0.6)  # the second half's channel trial only
     assert s["habit_channel"] == pytest.approx(0.25) and s["habit_adaptation"] == pytest.approx(1.0)
+
+
+def test_each_trial_is_measured_against_its_own_directions_baseline():
+    rows = [("baseline", "null", 1.0), ("baseline", "null", 3.0), ("baseline", "null", -1.0),
+            ("baseline", "channel", 0.2), ("adaptation", "field", 5.0), ("adaptation", "field", 0.0),
+            ("adaptation", "catch", -3.0), ("adaptation", "channel", 0.5), ("adaptation", "channel", 0.9)]
+    directions = [0, 0, 1, 0, 0, 1, 1, 1, 0]
+    t = ad.baseline_corrected(_table(rows, directions))
+    # lateral: direction 0's baseline 2.0, direction 1's -1.0; adaptation: direction 0's 0.2, direction 1 has no
+    # baseline channel trial and takes the mean over directions (0.2)
+    np.testing.assert_allclose(t["lateral_error"], [-1.0, 1.0, 0.0, np.nan, 3.0, 1.0, -2.0, np.nan, np.nan])
+    np.testing.assert_allclose(t["adaptation"], [np.nan] * 3 + [0.0, np.nan, np.nan, np.nan, 0.3, 0.7])
+    one = ad.baseline_corrected(_table(rows))  # one direction: the baseline block's means
+    np.testing.assert_allclose(one["lateral_error"][:3], [0.0, 2.0, -2.0])
+    s = ad.signatures(_table(rows, directions)).iloc[0]
+    assert s["field_push"] == pytest.approx((3.0 + 1.0) / 2) and s["after_effect"] == pytest.approx(-2.0)
+    no_base = _table([("baseline", "null", 1.0), ("adaptation", "channel", 0.4)])
+    assert ad.baseline_corrected(no_base)["adaptation"].iloc[1] == pytest.approx(0.4)  # no baseline channel: 0
 
 
 def _model_blocks() -> tuple[list[tuple[str, str]], list[str]]:
@@ -157,6 +177,8 @@ def test_command_refuses_before_writing(tmp_path, capsys):
     assert "no [trials] table" in capsys.readouterr().err
     assert main(["adaptation", "run", "--out", str(out), "--set", "agents=ddpg,nonesuch"]) == 2
     assert main(["adaptation", "run", "--out", str(out), "--set", "frobnicate=1"]) == 2
+    assert main(["adaptation", "run", "--out", str(out), "--set", "lesions=cerebellum"]) == 2
+    assert "lesions must be distinct names" in capsys.readouterr().err
     assert not out.exists()
     assert main(["adaptation", "report", str(out)]) == 2
 
@@ -234,14 +256,17 @@ def test_study_end_to_end_resumes_and_reports(tmp_path):
         ("channel", 3, 0.0, {"channel": True}), ("reexposure", 3, 100.0, {"catch_probability": 0.5}))]
     run = TrainConfig(task=ad.TASK, seeds=(0, 1, 2), task_overrides={"trials": {"block": blocks}},
                       agent=AgentConfig(batch_size=16, babbling_episodes=1))
-    proto = ad.Protocol(agents=("ddpg",), run=run)
+    proto = ad.Protocol(agents=("ddpg",), run=run, lesions=("model",))
     study = ad.run(tmp_path / "s", proto, progress=False, say=lambda _: None)
     metrics = (study / "runs" / "ddpg" / "metrics.parquet").read_bytes()
     ad.run(study, proto, progress=False, say=lambda _: None)  # a finished study: nothing trains again
     assert (study / "runs" / "ddpg" / "metrics.parquet").read_bytes() == metrics
     out = write_report(study)
     trials = pd.read_csv(out / "trials.csv")
-    assert len(trials) == 3 * 15 and set(trials["block"]) == {"training", *ad.BLOCKS}
+    assert len(trials) == 2 * 3 * 15 and set(trials["block"]) == {"training", *ad.BLOCKS}
+    assert set(trials["kind"]) == {"ddpg", "apac_model_frozen"}
+    lesion = json.loads((study / "runs" / "apac_model_frozen" / "config.json").read_text())["agent"]
+    assert (lesion["kind"], lesion["frozen"], lesion["frozen_from_episode"]) == ("apac", ["model"], 2 + 2)
     assert trials.loc[trials["block"] == "channel", "adaptation"].notna().all()
     with pytest.raises(ValueError, match="other settings"):
         ad.run(study, dataclasses_replace_seeds(proto, (0, 1)), progress=False)
@@ -251,3 +276,86 @@ def dataclasses_replace_seeds(proto: ad.Protocol, seeds: tuple[int, ...]) -> ad.
     import dataclasses
 
     return dataclasses.replace(proto, run=dataclasses.replace(proto.run, seeds=seeds))
+
+
+def test_the_carrier_is_the_learner_whose_lesioned_run_still_shows_the_signature():
+    from apac_mj.report.adaptation import carriers
+
+    def rows(kind, intervals):
+        return [{"kind": kind, "quantity": q, "mean": (lo + hi) / 2, "lo": lo, "hi": hi, "seeds": 10}
+                for q, (lo, hi) in intervals.items()]
+
+    unclear = (-1.0, 1.0)
+    habit_frozen = {**{q: unclear for q in ad.SIGNATURES}, "field_push": (0.5, 1.0), "after_effect": (-2.0, -0.5),
+                    "error_reduction": (0.1, 0.4)}
+    model_frozen = {**{q: unclear for q in ad.SIGNATURES}, "field_push": (0.2, 0.9), "savings": (0.3, 0.8),
+                    "after_effect": (0.5, 2.0), "error_reduction": (0.2, 0.5)}
+    summary = pd.DataFrame(rows("apac_habit_frozen", habit_frozen) + rows("apac_model_frozen", model_frozen)
+                           + rows("apac", {q: (0.1, 0.2) for q in ad.SIGNATURES}))
+    c = carriers(summary).set_index("signature")["carried_by"].to_dict()
+    assert c == {"field_push": "both", "error_reduction": "both", "after_effect": "internal model",
+                 "savings": "habit", "adaptation_late": "neither", "spontaneous_recovery": "neither"}
+    reversed_ = summary.copy()
+    worse = (reversed_["kind"] == "apac_model_frozen") & (reversed_["quantity"] == "spontaneous_recovery")
+    reversed_.loc[worse, ["lo", "hi"]] = [-0.8, -0.2]  # only the habit learns, and it rises the other way
+    c = carriers(reversed_).set_index("signature")["carried_by"].to_dict()
+    assert c["spontaneous_recovery"] == "habit, opposite the human sign" and c["field_push"] == "both"
+    assert carriers(summary[summary["kind"] != "apac_model_frozen"]).empty  # one lesion alone says nothing
+
+
+def test_the_lesioned_arms_freeze_their_learner_from_the_adaptation_block():
+    proto = ad.Protocol()
+    arms = proto.arms()
+    assert list(arms) == ["ddpg", "spac", "apac", "apac_habit_frozen", "apac_model_frozen"]
+    start = sum(b.episodes for b in ad.check_task(proto.run).blocks[:2])  # training + baseline
+    assert ad.block_start(proto.run, "adaptation") == start == 98
+    for label, lesion in (("apac_habit_frozen", ("habit",)), ("apac_model_frozen", ("model",))):
+        agent = arms[label].agent
+        assert (agent.kind, agent.frozen, agent.frozen_from_episode) == ("apac", lesion, start)
+    assert all(arms[k].agent.frozen == () for k in ("ddpg", "spac", "apac"))
+    assert all(c.episodes == proto.episodes() == 200 for c in arms.values())
+    with pytest.raises(ValueError, match="lesions must be distinct names"):
+        ad.Protocol(lesions=("actor",))
+    with pytest.raises(ValueError, match="lesioned_kind"):
+        ad.Protocol(lesioned_kind="ddpg")
+    assert list(ad.Protocol(lesions=()).arms()) == ["ddpg", "spac", "apac"]
+
+
+def test_parts_of_one_protocol_over_disjoint_seeds_report_as_one(tmp_path, monkeypatch):
+    from apac_mj.report import adaptation as rep
+
+    record = {"agents": ["ddpg"], "run": {"seeds": [0, 1], "task": "t"}, "lesions": []}
+    parts = {}
+    for name, seeds in (("a", [0, 1]), ("b", [2]), ("c", [1]), ("d", [3])):
+        (tmp_path / name).mkdir()
+        changed = {**record, "run": {**record["run"], "seeds": seeds}}
+        if name == "d":
+            changed["run"]["task"] = "other"
+        (tmp_path / name / ad.PROTOCOL_FILE).write_text(json.dumps(changed))
+        parts[str(tmp_path / name)] = pd.concat([_table([("baseline", "null", 1.0)]).assign(seed=s) for s in seeds])
+    monkeypatch.setattr(rep, "load_study", lambda s, motornet=None: parts[str(s)].assign(kind="ddpg"))
+    both = rep.load_studies([tmp_path / "a", tmp_path / "b"])
+    assert sorted(both["seed"]) == [0, 1, 2]
+    with pytest.raises(ValueError, match="seed 1 of 'ddpg' is in more than one"):
+        rep.load_studies([tmp_path / "a", tmp_path / "c"])
+    with pytest.raises(ValueError, match="holds another protocol"):
+        rep.load_studies([tmp_path / "a", tmp_path / "d"])
+
+
+def test_a_learners_contribution_is_the_intact_run_minus_the_run_that_froze_it_paired_by_seed():
+    from apac_mj.report.adaptation import lesion_effects
+
+    rows = []
+    for seed, (intact, no_habit, no_model) in enumerate(((1.0, 0.2, 1.1), (1.4, 0.5, 1.2), (0.8, 0.1, 0.9))):
+        for kind, v in (("apac", intact), ("apac_habit_frozen", no_habit), ("apac_model_frozen", no_model)):
+            rows.append({"kind": kind, "seed": seed, **{q: v for q in ad.SIGNATURES}})
+    rows.append({"kind": "apac_habit_frozen", "seed": 9, **{q: 50.0 for q in ad.SIGNATURES}})  # unpaired: left out
+    e = lesion_effects(pd.DataFrame(rows)).set_index(["learner", "signature"])
+    habit, model = e.loc[("habit", "savings")], e.loc[("internal model", "savings")]
+    assert habit["mean"] == pytest.approx(0.8) and habit["seeds"] == 3  # (0.8 + 0.9 + 0.7) / 3
+    d = np.array([0.8, 0.9, 0.7])
+    half = 6.205346816 * d.std(ddof=1) / math.sqrt(3)  # Student-t, 2 degrees of freedom, at 98.75% (stats.py)
+    assert (habit["lo"], habit["hi"]) == pytest.approx((0.8 - half, 0.8 + half))
+    assert habit["verdict"] == "yes" and model["mean"] == pytest.approx(0.0)
+    assert e.loc[("habit", "after_effect"), "verdict"] == "no"  # + is with the field: away from the human sign
+    assert lesion_effects(pd.DataFrame(rows)[lambda t: t["kind"] == "apac"]).empty

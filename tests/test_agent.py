@@ -350,3 +350,45 @@ def test_bf16_networks_leaves_the_others_in_fp32():
     torch.testing.assert_close(full["inverse"], ref["inverse"], rtol=0.05, atol=0.05)
     with pytest.raises(ValueError, match="bf16_networks"):
         AgentConfig(bf16_networks=("actor", "inverse"))
+
+
+def _weights(agent: Agent, nets: tuple[str, ...], k: int) -> list[torch.Tensor]:
+    return [p.detach()[k].clone() for n in nets for p in getattr(agent, n).parameters()]
+
+
+@pytest.mark.parametrize("frozen", [("habit",), ("model",), ("habit", "model")])
+def test_a_lesion_freezes_exactly_its_learners_for_lesioned_members(frozen):
+    """Issue 44's lesions: for a lesioned member the frozen learners' weights, target networks and Adam moments stay
+    bit for bit while the others learn; an unlesioned member of the same agent learns as an agent without lesions."""
+    habit, model = ("actor", "critic"), ("forward_model", "inverse_model")
+    still = tuple(n for name in frozen for n in {"habit": habit, "model": model}[name])
+    moving = tuple(n for n in habit + model if n not in still)
+    seeds, data = [3, 4], transitions(2, 5, seed=1)
+    lesioned, whole = Agent(small_cfg(frozen=frozen), seeds), Agent(small_cfg(), seeds)
+    for s, a, r, s2, d in data[:2]:  # both learn alike before the lesion
+        for agent in (lesioned, whole):
+            agent.replay.add(s, a, r, s2, d, [True, True])
+            agent.update(torch.tensor([True, True]), None if agent is whole else torch.tensor([False, False]))
+    before = {n: _weights(lesioned, (n,), 0) for n in habit + model}
+    targets = _weights(lesioned, ("target_actor", "target_critic"), 0)
+    for s, a, r, s2, d in data[2:]:
+        for agent in (lesioned, whole):
+            agent.replay.add(s, a, r, s2, d, [True, True])
+        lesioned.update(torch.tensor([True, True]), torch.tensor([True, False]))
+        whole.update(torch.tensor([True, True]))
+    for n in still:
+        assert all(torch.equal(p, q) for p, q in zip(before[n], _weights(lesioned, (n,), 0))), n
+    for n in moving:
+        assert not all(torch.equal(p, q) for p, q in zip(before[n], _weights(lesioned, (n,), 0))), n
+    assert all(torch.equal(p, q) for p, q in zip(targets, _weights(lesioned, ("target_actor", "target_critic"), 0))) \
+        == ("habit" in frozen)
+    for p, q in zip(_weights(lesioned, habit + model, 1), _weights(whole, habit + model, 1)):
+        torch.testing.assert_close(p, q, rtol=0, atol=0)  # member 1, not lesioned: as if nothing were frozen
+
+
+def test_a_lesion_needs_a_frozen_learner_and_known_names():
+    agent = Agent(small_cfg(), [0])
+    with pytest.raises(ValueError, match="agent.frozen names no learner"):
+        agent.update(torch.tensor([True]), torch.tensor([True]))
+    with pytest.raises(ValueError, match="frozen must be distinct names"):
+        small_cfg(frozen=("actor",))

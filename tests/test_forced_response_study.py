@@ -173,6 +173,26 @@ def test_a_rerun_with_other_settings_is_refused_naming_old_and_new(tmp_path):
     assert exp.check_rerun(study, _record(SMALL + ["practice=1,2", "agents=ddpg,apac"])) == []
 
 
+def test_a_study_made_before_an_agent_field_was_added_resumes(tmp_path):
+    """A protocol.json written before ``AgentConfig.frozen`` existed (issue 44) resumes: a field added since takes
+    the value its release behaved as (config.ADDED); a changed field is still refused."""
+    from apac_mj.config import ADDED
+
+    study = tmp_path / "study"
+    study.mkdir()
+    record = _record(SMALL + ["practice=1,2"])
+    old = json.loads(json.dumps(record))
+    for name in ("frozen", "frozen_from_episode"):
+        del old["run"]["agent"][name]
+    (study / exp.PROTOCOL_FILE).write_text(json.dumps(old))
+    assert exp.check_rerun(study, record) == []
+    assert {"frozen": [], "frozen_from_episode": 0}.items() <= ADDED.items()
+    lesioned = json.loads(json.dumps(record))
+    lesioned["run"]["agent"]["frozen"] = ["habit"]
+    with pytest.raises(ValueError, match=re.escape("run.agent.frozen: [] in the study, ['habit'] now")):
+        exp.check_rerun(study, lesioned)
+
+
 def test_kinds_and_longer_practice_extend_a_study_and_say_so(tmp_path):
     study = tmp_path / "study"
     study.mkdir()

@@ -233,6 +233,7 @@ def test_a_restored_environment_continues_the_trial_exactly():
 
 def test_metrics_carry_the_trial_columns_and_other_tasks_none(tmp_path):
     assert set(trials.TRIAL_COLUMNS) == set(run_dir.TRIAL_COLUMNS)
+    centre_out_only = {"trial_direction"}
     overrides = {"steps_per_episode": 6, "trials": {"go_cue_step": 1, "block": [
         {"name": "clamp", "episodes": 1, "channel": True},
         {"name": "adapt", "episodes": 1, "field_b": 100.0, "catch_probability": 1.0},
@@ -242,7 +243,7 @@ def test_metrics_carry_the_trial_columns_and_other_tasks_none(tmp_path):
                         tmp_path / "trials", progress=False)
     df = pd.read_parquet(run / "metrics.parquet")
     assert list(df.columns[:len(run_dir.METRIC_COLUMNS)]) == list(run_dir.METRIC_COLUMNS)
-    assert set(run_dir.TRIAL_COLUMNS) <= set(df.columns)
+    assert set(run_dir.TRIAL_COLUMNS) - set(df.columns) == centre_out_only  # no centre-out targets here
     assert df[["episode", "trial_block", "trial_type"]].values.tolist() == [
         [-1, "clamp", "channel"], [0, "clamp", "channel"], [1, "adapt", "catch"], [2, "after", "field"]]
     assert df.trial_field_b.tolist() == [0.0, 0.0, 0.0, -100.0]
@@ -284,6 +285,69 @@ def test_a_recording_shows_the_channel_the_catch_trial_and_the_go_cue(tmp_path):
     assert any(t.startswith("catch trial in block 'f'") for t in catch_events)
     assert any(t.startswith("channel trial in block 'clamp'") for t in channel_events)
     assert sum(t.startswith("go cue: the target shown") for t in catch_events + channel_events) == 2
+
+
+# -- centre-out targets ------------------------------------------------------------------------------------------------
+
+def test_each_direction_comes_once_per_cycle_in_an_order_drawn_per_cycle():
+    spec = TrialSpec(blocks=(Block("a", 40),), directions=8, start_episode=3)  # 3 babbling episodes before
+    ks = [spec.direction_at(5, e) for e in range(3, 3 + 40)]
+    for c in range(5):
+        assert sorted(ks[8 * c:8 * c + 8]) == list(range(8))
+    assert len({tuple(ks[8 * c:8 * c + 8]) for c in range(5)}) > 1  # not one order repeated
+    assert ks == [spec.direction_at(5, e) for e in range(3, 43)]  # a pure function of (key, episode)
+    assert ks != [spec.direction_at(6, e) for e in range(3, 43)]
+    assert sorted(spec.direction_at(5, e) for e in range(-5, 3)) == list(range(8))  # babbling: a cycle of its own
+    assert spec.trial_at(5, 10).direction == ks[7]
+    assert TrialSpec(blocks=(Block("a", 4),)).direction_at(5, 2) == -1  # no centre-out: -1
+
+
+def test_centre_out_targets_lie_at_the_distance_and_angle_from_the_start_posture():
+    spec = _spec([Block("a", 20)], directions=4, distance_cm=2.5, first_direction_deg=90.0, start_angles=(45.0, 90.0))
+    start, _ = motion_function(45.0, 90.0, *spec.link_lengths, spec.origin)
+    env = planar_arm.make_environment(spec, random=3)
+    seen = {}
+    for _ in range(8):
+        env.reset()
+        np.testing.assert_allclose(env.physics.joint_angles(), (45.0, 90.0))
+        np.testing.assert_allclose(env.physics.end_effector(), start, atol=1e-9)
+        k = env.task.trials.trial.direction
+        seen[k] = env.physics.target() - start
+        assert env.task.trials.record()["trial_direction"] == k
+    by_hand = {0: (0.0, 2.5), 1: (-2.5, 0.0), 2: (0.0, -2.5), 3: (2.5, 0.0)}  # 90, 180, 270, 360 degrees
+    assert sorted(seen) == [0, 1, 2, 3]
+    for k, offset in seen.items():
+        np.testing.assert_allclose(offset, by_hand[k], atol=1e-12)
+
+
+def test_reaching_angles_invert_the_motion_function():
+    for alpha, beta in ((45.0, 90.0), (10.0, 150.0), (120.0, 30.0)):
+        end, _ = motion_function(alpha, beta, 5.0, 8.0, (15.0, 15.0))
+        pairs = trials.reaching_angles(end, (5.0, 8.0), (15.0, 15.0))
+        assert any(abs(a - alpha) < 1e-9 and abs(b - beta) < 1e-9 for a, b in pairs)
+        for a, b in pairs:
+            np.testing.assert_allclose(motion_function(a, b, 5.0, 8.0, (15.0, 15.0))[0], end, atol=1e-9)
+    assert trials.reaching_angles((15.0 + 13.5, 15.0), (5.0, 8.0), (15.0, 15.0)) == []  # beyond l1 + l2
+
+
+@pytest.mark.parametrize("table, names", [
+    ({"directions": 8, "distance_cm": 9.0}, "trials.directions: direction"),  # off the reachable annulus
+    ({"directions": 8, "start_angles": [0.0, 180.0]}, "trials.directions: direction"),  # folded: some out of range
+    ({"directions": -1}, "trials.directions"),
+    ({"directions": 8, "distance_cm": 0.0}, "trials.distance_cm"),
+    ({"start_angles": [45.0]}, "trials.start_angles"),
+    ({"start_angles": [45.0, 200.0]}, "start pose"),
+])
+def test_bad_centre_out_tables_are_refused(table, names):
+    data = _task({**table, "block": [{"name": "a", "episodes": 5}]})
+    with pytest.raises(TaskSpecError, match=names.replace("[", r"\[").replace(".", r"\.")):
+        parse_task(data, "bad", "bad.toml")
+
+
+def test_centre_out_targets_refuse_a_task_that_sets_its_own():
+    with pytest.raises(TaskSpecError, match="centre-out targets need a task of changing targets"):
+        parse_task(_task({"directions": 4, "block": [{"name": "a", "episodes": 5}]}, target={"mode": "static"}),
+                   "bad", "bad.toml")
 
 
 # -- refusals ----------------------------------------------------------------------------------------------------------
@@ -352,7 +416,7 @@ def test_every_kind_trains_on_the_trial_types(tmp_path, kind):
 def test_an_extended_run_has_the_trials_of_an_uninterrupted_one(tmp_path):
     """Trial types are a pure function of (seed, episode): a run trained for 2 episodes and then extended to 4 has the
     metrics, trial columns included, of one trained for 4 at once."""
-    overrides = {"steps_per_episode": 5, "trials": {"block": [
+    overrides = {"steps_per_episode": 5, "trials": {"directions": 3, "start_angles": [45.0, 90.0], "block": [
         {"name": "mixed", "episodes": 4, "field_b": 80.0, "channel_probability": 0.4, "catch_probability": 0.5}]}}
 
     def cfg(episodes: int) -> TrainConfig:
@@ -363,8 +427,8 @@ def test_an_extended_run_has_the_trials_of_an_uninterrupted_one(tmp_path):
     apac_mj.train(cfg(2), tmp_path / "parts", progress=False)
     parts = pd.read_parquet(apac_mj.train(cfg(4), tmp_path / "parts", progress=False) / "metrics.parquet")
     columns = [*run_dir.METRIC_COLUMNS, *run_dir.TRIAL_COLUMNS]
-    pd.testing.assert_frame_equal(whole[columns], parts[columns])
-    assert len(set(whole.trial_type)) >= 2
+    pd.testing.assert_frame_equal(whole[columns], parts[columns])  # centre-out directions included
+    assert len(set(whole.trial_type)) >= 2 and set(whole.trial_direction) == {0, 1, 2}
 
 
 def test_the_ideal_plant_measures_once_per_step():
@@ -383,3 +447,38 @@ def test_the_ideal_plant_measures_once_per_step():
     assert record["trial_type"] == "null" and record["early_movement"] is False
     assert record["lateral_error"] == pytest.approx(max(deviations, key=abs), rel=1e-12)
     assert math.isnan(record["channel_force_peak"])
+
+
+def test_every_trial_type_carries_its_block_and_direction_and_the_schedule_shifts_whole():
+    spec = TrialSpec(blocks=(Block("a", 8), Block("b", 24, field_b=10.0, channel_probability=0.3,
+                                                    catch_probability=0.4)), directions=4)
+    seen = set()
+    for e in range(32):
+        t = spec.trial_at(3, e)
+        assert (t.block, t.direction) == (int(e >= 8), spec.direction_at(3, e))
+        seen.add(t.type)
+    assert seen == {"null", "channel", "catch", "field"}
+    shifted = spec.shifted(5)  # 5 babbling episodes before: episode e + 5 is the unshifted e
+    assert [shifted.trial_at(3, e + 5) for e in range(32)] == [spec.trial_at(3, e) for e in range(32)]
+    assert TrialSpec(blocks=(Block("a", 3),), directions=1).direction_at(3, 2) == 0  # one direction: always 0
+
+
+def test_reaching_angles_give_both_elbows_and_the_edge_of_the_workspace():
+    origin = (15.0, 12.0)  # not symmetric in x and y
+    end, _ = motion_function(30.0, 70.0, 5.0, 8.0, origin)
+    pairs = trials.reaching_angles(end, (5.0, 8.0), origin)
+    assert len(pairs) == 2 and {round(b, 9) for _, b in pairs} == {70.0, -70.0}
+    for a, b in pairs:
+        np.testing.assert_allclose(motion_function(a, b, 5.0, 8.0, origin)[0], end, atol=1e-9)
+    stretched = trials.reaching_angles((15.0 + 13.0, 12.0), (5.0, 8.0), origin)  # full extension: c = 1 exactly
+    assert [tuple(round(v, 9) for v in p) for p in stretched] == [(0.0, 0.0)]
+
+
+def test_a_centre_out_target_off_the_plane_is_refused():
+    table = {"directions": 4, "distance_cm": 3.0, "first_direction_deg": 180.0, "start_angles": [45.0, 90.0],
+             "block": [{"name": "a", "episodes": 5}]}
+    near_edge = _task(table, plane={"origin": [4.0, 15.0]})  # the hand starts at x = 1.88 cm: 3 cm left is off the plane
+    with pytest.raises(TaskSpecError, match=r"direction 0's target \(-1\.12, 24\.19\) cm.*off the plane"):
+        parse_task(near_edge, "bad", "bad.toml")
+    parse_task(_task({**table, "first_direction_deg": 0.0, "distance_cm": 1.0}, plane={"origin": [4.0, 15.0]}),
+               "ok", "ok.toml")

@@ -35,7 +35,7 @@ from apac_mj.agent.networks import (build_actor, build_critic, build_dynamics_mo
 from apac_mj.agent.noise import OUNoise
 from apac_mj.agent.precision import autocast, fp32_unless
 from apac_mj.agent.replay import EnsembleReplay
-from apac_mj.config import PRECISIONS, AgentConfig
+from apac_mj.config import FREEZABLE, PRECISIONS, AgentConfig
 from apac_mj.kinematics import Geometry
 from apac_mj.layout import ARM, ELBOW, END, Sizes, StateLayout
 from apac_mj.types import LOSSES
@@ -227,20 +227,23 @@ class Agent:
         return r + self.cfg.gamma * (1.0 - done) * q2
 
     # -- learning ----------------------------------------------------------------
-    def update(self, active: torch.Tensor | Sequence[bool]) -> dict[str, torch.Tensor]:
+    def update(self, active: torch.Tensor | Sequence[bool],
+               lesioned: torch.Tensor | Sequence[bool] | None = None) -> dict[str, torch.Tensor]:
         """One update of critic, actor, forward and inverse model for members that are
-        ``active`` and hold at least one transition; soft target update for them.
+        ``active`` and hold at least one transition; soft target update for them. For members that are
+        ``lesioned`` the learners of ``cfg.frozen`` learn nothing (their weights, targets and Adam moments stay).
         Returns per-member losses ``[E]`` (NaN for members not updated)."""
         act = torch.as_tensor(active).cpu().bool().tolist()
         if len(act) != self.E:
             raise ValueError(f"active must have {self.E} entries, got {len(act)}")
+        self._lesioned = self._lesion_mask(lesioned)
         members = [k for k in range(self.E) if act[k] and self.replay.count[k] >= 1]
         nan = torch.full((self.E,), float("nan"), device=self.device)
         if not members:
             return {name: nan.clone() for name in self.loss_names}
         losses = self.gradients(self.replay.sample(self.cfg.batch_size, members), members)
         self.optimizer.step()
-        self._soft_update(members)
+        self._soft_update(self._learning("actor", members))
         for _ in range(self.model_updates):
             self._model_step(self.replay.sample(self.cfg.batch_size, members), members)
         for _ in range(self.cfg.inverse_updates):
@@ -249,11 +252,31 @@ class Agent:
         keep[members] = True
         return {name: torch.where(keep, loss, nan) for name, loss in losses.items()}
 
+    def _lesion_mask(self, lesioned: torch.Tensor | Sequence[bool] | None) -> list[bool]:
+        """``lesioned`` as E booleans (None: no member); a mask for an agent with nothing frozen is refused."""
+        if lesioned is None:
+            return [False] * self.E
+        mask = torch.as_tensor(lesioned).cpu().bool().tolist()
+        if len(mask) != self.E:
+            raise ValueError(f"lesioned must have {self.E} entries, got {len(mask)}")
+        if any(mask) and not self.cfg.frozen:
+            raise ValueError("lesioned members given, but agent.frozen names no learner to freeze")
+        return mask
+
+    def _learning(self, net: str, members: Sequence[int]) -> list[int]:
+        """``members`` whose network ``net`` learns this update (not frozen by a lesion)."""
+        frozen = any(net in FREEZABLE[name] for name in self.cfg.frozen)
+        lesioned = getattr(self, "_lesioned", None) or [False] * self.E
+        return [k for k in members if not (frozen and lesioned[k])]
+
     def _model_step(self, batch: dict[str, torch.Tensor], members: Sequence[int],
                     net: str = "dynamics_model") -> None:
         """One more Adam step of the model ``net`` alone on ``batch`` for ``members`` (the dynamics model:
         ``mpc.model_updates``; the inverse model: ``inverse_updates``): every other network's per-member views
-        get no gradient, so Adam leaves them untouched."""
+        get no gradient, so Adam leaves them untouched; nor do members whose ``net`` a lesion froze."""
+        members = self._learning(net, members)
+        if not members:
+            return
         for views in self._views.values():
             for vs in views:
                 for v in vs:
@@ -296,10 +319,10 @@ class Agent:
         weight = torch.zeros(self.E, device=self.device)
         weight[members] = 1.0
         sum(((loss * weight).sum() for loss in losses.values()), torch.zeros((), device=self.device)).backward()
-        on = [False] * self.E
-        for k in members:
-            on[k] = True
         for net, views in self._views.items():
+            on = [False] * self.E
+            for k in self._learning(net, members):
+                on[k] = True
             for p, vs in zip(getattr(self, net).parameters(), views):
                 for v, g, k_on in zip(vs, p.grad.unbind(0), on):  # one unbind per parameter, not E indexings
                     v.grad = g if k_on else None
@@ -356,6 +379,8 @@ class Agent:
     def _soft_update(self, members: list[int]) -> None:
         """``theta' <- tau theta + (1 - tau) theta'`` for the target actor and critic of ``members``."""
         tau = self.cfg.tau
+        if not members:
+            return
         if len(members) == self.E:
             torch._foreach_lerp_([t for t, _ in self._soft_pairs], [o for _, o in self._soft_pairs], tau)
             return

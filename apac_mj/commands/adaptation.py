@@ -66,8 +66,11 @@ def _run_parser(actions: argparse._SubParsersAction) -> None:
 
 def _report_parser(actions: argparse._SubParsersAction) -> None:
     p = action_parser(actions, "report", "the report of a study: signatures, two-state fits and figures", REPORT_EPILOG)
-    p.add_argument("study", metavar="STUDY_DIR", help="the study directory (its runs/)")
-    p.add_argument("--out", default=None, metavar="DIR", help="where the report goes (default STUDY_DIR/report)")
+    p.add_argument("study", metavar="STUDY_DIR", nargs="+",
+                   help="the study directory (its runs/); several: one protocol run in parts over disjoint seeds "
+                        "(--set seeds=10-19), reported as one")
+    p.add_argument("--out", default=None, metavar="DIR",
+                   help="where the report goes (default the first STUDY_DIR's report/)")
     p.add_argument("--motornet", default=None, metavar="TRIALS.csv",
                    help="MotorNet's per-trial table (bench/motornet_adaptation.py), drawn beside the agents")
     p.set_defaults(func=report)
@@ -85,11 +88,12 @@ def protocol(items: list[str]):
     from apac_mj.util import overrides
 
     run = {f.name for f in dataclasses.fields(TrainConfig)} - {"agent", "episodes"}  # episodes: the blocks'
-    data = overrides.apply_sets({}, items, agent_fields=overrides.keys(AgentConfig), top_level={"agents"} | run)
+    own_fields = {"agents", "lesions", "lesioned_kind"}
+    data = overrides.apply_sets({}, items, agent_fields=overrides.keys(AgentConfig), top_level=own_fields | run)
     if "seeds" in data:
         data["seeds"] = overrides.parse_seeds(data["seeds"])
     agent = overrides.typed_fields(AgentConfig, data.pop("agent", {}), "--set agent.", skip=("kind",))
-    own = overrides.typed_fields(Protocol, {k: v for k, v in data.items() if k == "agents"}, "--set ", skip=("run",))
+    own = overrides.typed_fields(Protocol, {k: v for k, v in data.items() if k in own_fields}, "--set ", skip=("run",))
     base = study_run()
     cfg = dataclasses.replace(base, agent=dataclasses.replace(base.agent, **agent),
                               **overrides.typed_fields(TrainConfig, {k: v for k, v in data.items() if k in run},
@@ -111,5 +115,5 @@ def run_study(args: argparse.Namespace) -> int:
 def report(args: argparse.Namespace) -> int:
     from apac_mj.report.adaptation import write_report
 
-    print(write_report(args.study, out=args.out, motornet=args.motornet))
+    print(write_report(args.study if len(args.study) > 1 else args.study[0], out=args.out, motornet=args.motornet))
     return 0

@@ -147,6 +147,7 @@ def check_rerun(study: Path, record: dict) -> list[str]:
     naming every setting that differs from ``protocol.json`` (old and new values): only agent kinds, and practice
     lengths above the study's last, may be added. Tests without a protocol.json are refused (their settings are
     unknown). Reads only."""
+    from apac_mj.config import migrate_study
     from apac_mj.run.run_dir import diff
     from apac_mj.util.files import read_json
 
@@ -156,6 +157,7 @@ def check_rerun(study: Path, record: dict) -> list[str]:
             raise ValueError(f"{study} holds tests but no {PROTOCOL_FILE} recording the settings they were made "
                              "with; use another --out (nothing was written)")
         return []
+    stored = migrate_study(stored)  # fields added to the agent since the study was made: their old behaviour
     fixed = [k for k in stored if k not in EXTENSIBLE and k in record]  # a key the study predates: not checked
     changed = diff({k: stored[k] for k in fixed}, {k: record[k] for k in fixed}, "in the study")
     changed += _not_extended(stored, record)

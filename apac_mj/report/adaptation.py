@@ -25,8 +25,11 @@ MOTORNET = "motornet"
 #: Trials in the running mean of the learning curves (field and null trials; catch trials drawn one by one).
 SMOOTH = 5
 #: What each kind's habit share means (the controllers of the kinds of the published study).
+#: The published lesioned runs (:data:`apac_mj.experiments.adaptation.LESIONS` of the study's arbitrated kind).
+HABIT_FROZEN, MODEL_FROZEN = (study_mod.lesion_label(study_mod.LESIONED_KIND, x) for x in study_mod.LESIONS)
 CONTROLLERS = {**dict(zip(study_mod.STUDY_KINDS, ("habit only", "internal model only", "both, arbitrated"))),
-               MOTORNET: "one network"}
+               MOTORNET: "one network", HABIT_FROZEN: "both act; only the internal model learns",
+               MODEL_FROZEN: "both act; only the habit learns"}
 
 
 def load_study(study: str | Path, motornet: str | Path | None = None) -> pd.DataFrame:
@@ -41,7 +44,9 @@ def load_study(study: str | Path, motornet: str | Path | None = None) -> pd.Data
         raise FileNotFoundError(f"{study}: no {study_mod.PROTOCOL_FILE} (run apac-mj adaptation run --out {study})")
     b = next(blk["field_b"] for blk in record["task_spec"]["trials"]["blocks"] if blk["name"] == "adaptation")
     frames = []
-    for kind in record["agents"]:
+    lesions = [study_mod.lesion_label(record.get("lesioned_kind", study_mod.LESIONED_KIND), x)
+               for x in record.get("lesions", [])]
+    for kind in [*record["agents"], *lesions]:
         rd = RunDir(study_mod.run_path(study, kind))
         if not rd.has_metrics():
             continue
@@ -54,7 +59,10 @@ def load_study(study: str | Path, motornet: str | Path | None = None) -> pd.Data
 
 
 def check_trials(df: pd.DataFrame, source: str) -> pd.DataFrame:
-    """``df`` has every per-trial column and known block names; else ValueError naming the file."""
+    """``df`` has every per-trial column and known block names; else ValueError naming the file. A table from
+    before centre-out targets (no ``direction``) reads as targets anywhere (-1)."""
+    if "direction" not in df.columns:
+        df = df.assign(direction=-1)
     missing = sorted(set(study_mod.TRIAL_COLUMNS) - set(df.columns))
     if missing:
         raise ValueError(f"{source}: lacks the per-trial columns {missing}")
@@ -98,10 +106,100 @@ def verdict(row: pd.Series, positive: bool) -> str:
     return "no" if ((row["hi"] < 0) if positive else (row["lo"] > 0)) else "unclear (interval spans 0)"
 
 
-def write_report(study: str | Path, out: str | Path | None = None, motornet: str | Path | None = None) -> Path:
-    """Tables, figures and report.md into ``out`` (default ``STUDY/report``); returns ``out``."""
-    out = Path(out) if out is not None else Path(study) / "report"
-    return write_tables(load_study(study, motornet), out)
+#: Which learner each lesioned run keeps learning: the run whose learner shows a signature carries it.
+LEARNS = {HABIT_FROZEN: "internal model", MODEL_FROZEN: "habit"}
+#: Which learner each lesioned run froze: the intact run minus it is what that learner's learning adds.
+FROZEN = {HABIT_FROZEN: "habit", MODEL_FROZEN: "internal model"}
+
+
+def carriers(summary: pd.DataFrame) -> pd.DataFrame:
+    """Which controller carries each signature, from the lesioned runs (:data:`LEARNS`): "habit" where the run in
+    which only the habit learns shows it (its interval on the human side of 0) and the run in which only the
+    internal model learns does not; "internal model" the reverse; "both" where both show it. Where neither shows
+    it but a run's interval lies on the other side of 0, that learner carries the opposite of the human signature
+    ("habit, opposite the human sign"); else "neither". One row per signature: each run's verdict
+    (:func:`verdict`) and the carrier; empty without the two lesioned runs."""
+    s = summary.set_index(["kind", "quantity"])
+    runs = [k for k in LEARNS if (k, "field_push") in s.index]
+    if len(runs) < 2:
+        return pd.DataFrame(columns=["signature", *LEARNS, "carried_by"])
+    rows = []
+    for name in study_mod.SIGNATURES:
+        says = {k: verdict(s.loc[(k, name)], name != "after_effect") for k in runs}
+        rows.append({"signature": name, **says, "carried_by": _carrier(says)})
+    return pd.DataFrame(rows)
+
+
+def _carrier(says: dict[str, str]) -> str:
+    """The learner(s) whose lesioned run shows the signature ("yes"), else shows its opposite ("no"), else
+    "neither"."""
+    for word, suffix in (("yes", ""), ("no", ", opposite the human sign")):
+        shown = [LEARNS[k] for k, v in says.items() if v == word]
+        if shown:
+            return ("both" if len(shown) == 2 else shown[0]) + suffix
+    return "neither"
+
+
+def load_studies(studies: list[str | Path], motornet: str | Path | None = None) -> pd.DataFrame:
+    """Several studies of one protocol run over disjoint seeds (``--set seeds=10-19``) as one per-trial table:
+    their protocol.json must agree but for the seeds, and no kind may hold a seed twice; else ValueError naming
+    the study and what differs."""
+    from apac_mj.util.files import read_json
+
+    records = [read_json(Path(s) / study_mod.PROTOCOL_FILE, fix="rerun apac-mj adaptation run") for s in studies]
+    first = _without_seeds(records[0])
+    for s, r in zip(studies[1:], records[1:]):
+        if r is None or _without_seeds(r) != first:
+            raise ValueError(f"{s} holds another protocol than {studies[0]} (settings other than the seeds "
+                             "differ): only parts of one protocol over disjoint seeds are reported as one")
+    table = pd.concat([load_study(s) for s in studies], ignore_index=True)
+    twice = table.groupby(["kind", "seed"])["trial"].apply(lambda t: t.duplicated().any())
+    if twice.any():
+        kind, seed = twice[twice].index[0]
+        raise ValueError(f"seed {seed} of {kind!r} is in more than one of the studies {', '.join(map(str, studies))}")
+    if motornet is not None:
+        table = pd.concat([table, check_trials(pd.read_csv(motornet), str(motornet)).assign(kind=MOTORNET)],
+                          ignore_index=True)
+    return table
+
+
+def _without_seeds(record: dict | None) -> dict | None:
+    if record is None:
+        return None
+    return {**record, "run": {k: v for k, v in record.get("run", {}).items() if k != "seeds"}}
+
+
+def lesion_effects(per_seed: pd.DataFrame, intact: str = study_mod.LESIONED_KIND) -> pd.DataFrame:
+    """What each learner's learning adds to each signature: per seed, the intact run's signature minus the run's
+    in which that learner was frozen (:data:`FROZEN`; the two runs are the same until the adaptation block, so the
+    difference is paired), mean and 95% interval over seeds (:func:`seed_interval`), and its verdict on the human
+    sign ("yes": the learning moves the signature towards the human sign; "no": away from it). Empty without the
+    runs."""
+    rows = []
+    base = per_seed[per_seed["kind"] == intact].set_index("seed")
+    for kind, learner in FROZEN.items():
+        lesioned = per_seed[per_seed["kind"] == kind].set_index("seed")
+        seeds = base.index.intersection(lesioned.index)
+        if not len(seeds):
+            continue
+        for name in study_mod.SIGNATURES:
+            d = (base.loc[seeds, name] - lesioned.loc[seeds, name]).to_numpy(float)
+            d = d[np.isfinite(d)]
+            lo, hi = seed_interval(d) if d.size else (math.nan, math.nan)
+            row = {"learner": learner, "signature": name, "mean": float(d.mean()) if d.size else math.nan,
+                   "lo": lo, "hi": hi, "seeds": int(d.size)}
+            rows.append({**row, "verdict": verdict(pd.Series(row), name != "after_effect")})
+    return pd.DataFrame(rows, columns=["learner", "signature", "mean", "lo", "hi", "seeds", "verdict"])
+
+
+def write_report(study: str | Path | list[str | Path], out: str | Path | None = None,
+                 motornet: str | Path | None = None) -> Path:
+    """Tables, figures and report.md into ``out`` (default ``STUDY/report``, the first study's); returns ``out``.
+    ``study`` may be a list: one protocol's parts over disjoint seeds (:func:`load_studies`)."""
+    studies = list(study) if isinstance(study, (list, tuple)) else [study]
+    out = Path(out) if out is not None else Path(studies[0]) / "report"
+    trials = load_studies(studies, motornet) if len(studies) > 1 else load_study(studies[0], motornet)
+    return write_tables(trials, out)
 
 
 def write_tables(trials: pd.DataFrame, out: Path) -> Path:
@@ -110,15 +208,19 @@ def write_tables(trials: pd.DataFrame, out: Path) -> Path:
     per_seed = pd.concat([study_mod.signatures(g).assign(kind=k) for k, g in trials.groupby("kind", sort=False)])
     habit = [f"habit_{b}" for b in study_mod.BLOCKS]
     summary = summarize(per_seed, [*study_mod.SIGNATURES, *habit])
-    fitted = fits(trials)
+    corrected = pd.concat([study_mod.baseline_corrected(g) for _, g in trials.groupby(["kind", "seed"], sort=False)])
+    fitted = fits(corrected)  # the two-state model's x starts at 0: each direction's baseline taken off
     fit_summary = pd.concat([two_state.summarize(g).assign(kind=k) for k, g in fitted.groupby("kind", sort=False)])
     trials.to_csv(out / "trials.csv", index=False)
     per_seed.to_csv(out / "signatures.csv", index=False)
     summary.to_csv(out / "summary.csv", index=False)
     fitted.to_csv(out / "two_state.csv", index=False)
     fit_summary.to_csv(out / "two_state_summary.csv", index=False)
-    _figures(trials, fitted, per_seed, out)
-    (out / "report.md").write_text(_markdown(summary, fit_summary, trials))
+    carriers(summary).to_csv(out / "carriers.csv", index=False)
+    effects = lesion_effects(per_seed)
+    effects.to_csv(out / "lesion_effects.csv", index=False)
+    _figures(corrected, fitted, per_seed, out)
+    (out / "report.md").write_text(_markdown(summary, fit_summary, trials, effects))
     return out
 
 
@@ -138,7 +240,8 @@ def _figures(trials: pd.DataFrame, fitted: pd.DataFrame, per_seed: pd.DataFrame,
     from apac_mj.report.labels import kind_colors
 
     palette = kind_colors()
-    color = {k: palette.get(k, "black") for k in trials["kind"].unique()}
+    spare = iter(("tab:red", "tab:purple", "tab:brown", "tab:pink", "tab:olive"))
+    color = {k: palette.get(k) or ("black" if k == MOTORNET else next(spare, "grey")) for k in trials["kind"].unique()}
     shown = trials[trials["block"] != "training"]
     fig, ax = plt.subplots(figsize=(9, 4))
     for kind, g in _curve(shown[~shown["catch"]], "lateral_error").groupby("kind", sort=False):
@@ -147,7 +250,7 @@ def _figures(trials: pd.DataFrame, fitted: pd.DataFrame, per_seed: pd.DataFrame,
     for kind, g in _curve(shown[shown["catch"]], "lateral_error").groupby("kind", sort=False):
         ax.plot(g["trial"], g["lateral_error"], "v", color=color[kind], ms=4)
     _blocks(ax, shown)
-    ax.set(xlabel="trial (training episode)", ylabel="lateral error (cm; + with the field)",
+    ax.set(xlabel="trial (training episode)", ylabel="lateral error - baseline (cm; + with field)",
            title=f"Learning curves (mean over seeds, running mean of {SMOOTH} trials; triangles: catch trials)")
     ax.axhline(0, color="grey", lw=0.5)
     ax.legend(fontsize=8)
@@ -214,7 +317,8 @@ def _fmt(row: pd.Series) -> str:
     return f"{row['mean']:.3g} {ci}"
 
 
-def _markdown(summary: pd.DataFrame, fit_summary: pd.DataFrame, trials: pd.DataFrame) -> str:
+def _markdown(summary: pd.DataFrame, fit_summary: pd.DataFrame, trials: pd.DataFrame,
+              effects: pd.DataFrame | None = None) -> str:
     """report.md: per kind, each signature with its interval and verdict, the fits and the habit's shares."""
     lines = ["# Adaptation study", "", "Mean over seeds [95% interval, Student-t over seeds (97.5% quantile)].", "",
              "| kind (controllers) | seeds | " + " | ".join(study_mod.SIGNATURES) + " |",
@@ -233,6 +337,21 @@ def _markdown(summary: pd.DataFrame, fit_summary: pd.DataFrame, trials: pd.DataF
               "| kind | " + " | ".join(study_mod.BLOCKS) + " |", "|---|" + "---|" * len(study_mod.BLOCKS)]
     for kind in summary["kind"].unique():
         lines.append(f"| {kind} | " + " | ".join(_fmt(s.loc[(kind, f'habit_{b}')]) for b in study_mod.BLOCKS) + " |")
+    carried = carriers(summary)
+    if len(carried):
+        lines += ["", "## Which controller carries it: the lesioned runs", "",
+                  "| signature | only the internal model learns | only the habit learns | carried by |",
+                  "|---|---|---|---|"]
+        lines += [f"| {r['signature']} | {' | '.join(r[k] for k in LEARNS)} | {r['carried_by']} |"
+                  for _, r in carried.iterrows()]
+    if effects is not None and len(effects):
+        lines += ["", "## What each learner's learning adds: intact APAC minus the lesioned run, paired by seed", "",
+                  "| signature | " + " | ".join(f"{x}'s learning" for x in effects["learner"].unique()) + " |",
+                  "|---|" + "---|" * effects["learner"].nunique()]
+        e = effects.set_index(["learner", "signature"])
+        for name in study_mod.SIGNATURES:
+            cells = [f"{_fmt(e.loc[(x, name)])}: {e.loc[(x, name), 'verdict']}" for x in effects["learner"].unique()]
+            lines.append(f"| {name} | " + " | ".join(cells) + " |")
     lines += ["", "## Two-state model fitted to the channel trials (per seed, then over seeds)", "",
               "| kind | " + " | ".join(two_state.PARAMETERS) + " |", "|---|" + "---|" * 4]
     f = fit_summary.set_index(["kind", "parameter"])

@@ -2,7 +2,8 @@
 
 Input: the tests' tables (:data:`apac_mj.run.forced_response.COLUMNS`), one per practice length and kind,
 ``tests/p<episodes>/<kind>.parquet`` under a study directory (:mod:`apac_mj.experiments.forced_response`).
-Per seed, cues of one type (remapped, unchanged) are pooled; intervals are 95% bootstrap intervals over seeds.
+Per seed, cues of one type (remapped, unchanged) are pooled; intervals are the report's 95% seed interval
+(:func:`apac_mj.report.stats.seed_interval`: Student-t over seeds, clipped to [0, 1]; its coverage measured).
 """
 from __future__ import annotations
 
@@ -166,8 +167,6 @@ KEYS = 4
 HUMAN_FITS = "docs/results/forced_response/human/hardwick_fits.csv"
 #: The human groups the agents are set beside (minimal practice has no habit to express).
 HUMAN_GROUPS = ("4day", "20day")
-#: The timing model the shipped tables (docs/results/forced_response/) were made under.
-SHIPPED_TIMING = "the timing model of commit 0d4545c"
 
 
 def remapped_counts(g: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
@@ -289,7 +288,7 @@ def figure(curve: pd.DataFrame, out: str | Path, human: pd.DataFrame | None = No
     for ax in axes[-1]:
         ax.set_xlabel("preparation time (ms)")
     axes[0, 0].legend(fontsize=6, loc="center right")
-    fig.suptitle("Forced response after the remap. Model: colours, 95% bootstrap over seeds, dotted: time-outs.\n"
+    fig.suptitle("Forced response after the remap. Model: colours, 95% seed interval (Student-t), dotted: time-outs.\n"
                  "Humans (Hardwick et al. 2019): grey, 4-day dashed, 20-day solid; light: P(correct), dark: "
                  "P(habitual error) / P(error)", fontsize=9)
     fig.tight_layout()

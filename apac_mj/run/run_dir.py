@@ -79,6 +79,8 @@ TRIAL_COLUMNS = {
     "peak_speed": "cm/s",
     #: the hand moved more than ``trials.early_movement_cm`` before the go cue (False without a go cue)
     "early_movement": "bool",
+    #: centre-out targets only (``trials.directions`` > 0): the target's direction index
+    "trial_direction": "index",
 }
 # After them: the measured columns (issue 28; apac_mj.types.TIMING_COLUMNS), not in the rows' digest (wall times
 # differ from run to run; runs from before them lack them: NaN when such a run is extended); then any further

@@ -234,14 +234,17 @@ class Trainer:
             executed = info.tensors.action
         learned = executed if self.cfg.agent.critic_action == "executed" else info.tensors.action
         agent.replay.add(s, learned, r, s2, done, torch.as_tensor(active), executed_action=executed)
+        lesioned = (st.episode >= self.cfg.agent.frozen_from_episode) if self.cfg.agent.frozen else None
         for _ in range(self.cfg.agent.updates_per_step):
-            self._update(active)
+            self._update(active, lesioned)
         episodes.advance(st, info, active, counted=active & ~babbling, next_state=s2)
         return info
 
-    def _update(self, active: np.ndarray) -> None:
-        """One update of the agent; this episode's loss sums of the members it updated."""
-        losses = self.run.agent.update(torch.as_tensor(active))
+    def _update(self, active: np.ndarray, lesioned: np.ndarray | None = None) -> None:
+        """One update of the agent (``lesioned``: the members whose ``agent.frozen`` learners no longer learn);
+        this episode's loss sums of the members it updated."""
+        agent, active = self.run.agent, torch.as_tensor(active)
+        losses = agent.update(active) if lesioned is None else agent.update(active, torch.as_tensor(lesioned))
         names = self.run.agent.loss_names
         values = torch.stack([losses[n] for n in names], dim=1).float().cpu().numpy()  # one transfer
         updated = np.isfinite(values).all(axis=1)

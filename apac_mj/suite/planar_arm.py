@@ -22,7 +22,7 @@ from apac_mj.kinematics import motion_function
 from apac_mj.suite.plant import (_SITE, FORCE_UNIT, INERTIA_UNIT, LENGTH_UNIT, TORQUE_UNIT,  # noqa: F401 (re-exported)
                                   Plant, PlantSpec, check_field, curl_force)
 from apac_mj.suite import deliberation
-from apac_mj.suite.task_spec import START_ANGLES, TaskSpec
+from apac_mj.suite.task_spec import START_ANGLES, TaskSpec  # noqa: F401  (START_ANGLES: re-exported)
 from apac_mj.suite.signals import Senses, check_actuation, motor_command
 from apac_mj.suite.trials import TrialRunner, trial_key
 
@@ -446,7 +446,7 @@ class Reach(base.Task):
         if self.trials is not None:  # the episode's trial (its field) before the plant is set for it
             self.trials.new_episode(self.episode)
         self.apply_episode_plant(physics)
-        physics.set_joint_angles(*START_ANGLES)
+        physics.set_joint_angles(*self.spec.start_angles())
         physics.set_target(self._episode_target())
         physics.forward()
         if self.trials is not None:
@@ -481,6 +481,8 @@ class Reach(base.Task):
             return self._cued_target()
         if self._target_override is not None:
             return self._target_override
+        if self.trials is not None and self.spec.trials.directions:  # centre-out: the trial's direction
+            return self.trials.centre_out_target(motion_function(*self.spec.start_angles(), *self._lengths, self.spec.origin)[0])
         if self.spec.target_mode == "static":
             if self._static_target is None:
                 self._static_target = self.sample_target()

@@ -26,7 +26,7 @@ from apac_mj.suite.plant import (PLANT_ACTUATIONS, PLANT_SOURCES, PLANT_UNITS, S
                                   finite_number, parse_plant, plant_override)
 from apac_mj.suite.deliberation import DeliberationSpec, check_deliberation, parse_deliberation
 from apac_mj.suite.signals import SignalSpec, check_task_signals, describe_signals, parse_signals
-from apac_mj.suite.trials import TrialSpec, check_task_trials, parse_trials
+from apac_mj.suite.trials import TrialSpec, check_centre_out, check_task_trials, parse_trials
 from apac_mj.util import paths
 from apac_mj.util.registry import Registry
 
@@ -209,8 +209,9 @@ class TaskSpec:
         lo, hi = self.joint_range
         if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
             raise TaskSpecError(f"task {self.name!r}: joint_range must be finite with low < high, got {self.joint_range}")
-        if not all(lo <= a <= hi for a in START_ANGLES):
-            raise TaskSpecError(f"task {self.name!r}: joint_range {self.joint_range} must hold the start pose {START_ANGLES}")
+        if not all(lo <= a <= hi for a in self.start_angles()):
+            raise TaskSpecError(f"task {self.name!r}: joint_range {self.joint_range} must hold the start pose "
+                                f"{self.start_angles()}")
         ox, oy = self.origin
         if not (0 <= ox <= self.plane_size[0] and 0 <= oy <= self.plane_size[1]):
             raise TaskSpecError(f"task {self.name!r}: origin {self.origin} lies outside the plane {self.plane_size}")
@@ -223,6 +224,13 @@ class TaskSpec:
             check_deliberation(self)
         if self.trials is not None:
             check_task_trials(self.name, self.trials, self.plant, self.steps_per_episode, self.vision)
+            check_centre_out(self)
+
+    def start_angles(self) -> tuple[float, float]:
+        """The arm's posture at every episode's start (shoulder, elbow; deg): a ``[trials]`` table's
+        ``start_angles``, else :data:`START_ANGLES`."""
+        angles = getattr(self.trials, "start_angles", None)
+        return START_ANGLES if angles is None else tuple(angles)
 
     @property
     def cued(self) -> bool:

@@ -13,6 +13,10 @@ The file format (every key but the blocks optional; the defaults shown)::
     catch_probability = 0.0      # every field block's default: the chance that a trial has the field off
     go_cue_step = 0              # control steps of hold before the go cue (0: no go cue, no hold)
     early_movement_cm = 0.5      # hand displacement before the go cue counted as an early movement (cm)
+    directions = 0               # centre-out: n > 0 fixed target directions around the hand's start (0: the task's)
+    distance_cm = 3.0            # centre-out: the targets' distance from the hand's start (cm)
+    first_direction_deg = 90.0   # centre-out: the first direction (deg; 90: +y, away from the shoulder)
+    start_angles = [45.0, 90.0]  # the start posture (shoulder, elbow; deg); absent: the task's (0, 180)
 
     [[trials.block]]             # one table per block, in the order they run
     name = "baseline"            # the block's label (metrics column ``trial_block``)
@@ -36,6 +40,14 @@ field, "null". Each episode's two draws (channel, catch) come from a generator s
 (:func:`trial_key`: the seed's stream, left untouched): the same seed gives the same schedule, the trial type of
 every episode is a pure function of (seed, episode), so a resumed run agrees, and a task with a ``[trials]``
 table draws the same targets as the same task without one.
+
+**Centre-out targets** (``directions = n > 0``): every trial starts at the start posture (``start_angles``, else
+the task's) and its target lies ``distance_cm`` from the hand's start in one of ``n`` fixed directions,
+``first_direction_deg + 360 k / n`` (k = 0 .. n-1), as in a motor-control laboratory's centre-out task: each
+direction comes once in every cycle of ``n`` trials, in an order drawn per cycle from ``(key, cycle)``
+(:meth:`TrialSpec.direction_at`), so each trial can be measured against its own direction's baseline. The
+episode's direction is the metrics column ``trial_direction`` (a task without centre-out targets has no such
+column). The targets must be reachable within the joint range and on the plane (checked with the task).
 
 **The channel** (an error clamp, Scheidt et al. 2000; Smith, Ghazizadeh & Shadmehr 2006): a spring-damper on the
 hand across the straight line from the hand's position at the movement's start (the episode's start; with a go
@@ -97,10 +109,11 @@ TRIAL_COLUMNS = {
                                    "off channel trials)",
     "peak_speed": "the hand's peak speed in the movement (cm/s)",
     "early_movement": "the hand moved more than early_movement_cm before the go cue (False without a go cue)",
+    "trial_direction": "centre-out targets only: the target's direction index k (suite.trials.TrialSpec.direction_at)",
 }
 _BLOCK_KEYS = ("name", "episodes", "field_b", "channel", "channel_probability", "catch_probability")
 _TABLE_KEYS = ("block", "channel_stiffness", "channel_damping", "channel_probability", "catch_probability",
-               "go_cue_step", "early_movement_cm")
+               "go_cue_step", "early_movement_cm", "directions", "distance_cm", "first_direction_deg", "start_angles")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -129,6 +142,8 @@ class Trial:
     name: str
     type: str
     field_b: float
+    #: The centre-out direction's index (-1: the task's own target).
+    direction: int = -1
 
     @property
     def channel(self) -> bool:
@@ -149,6 +164,14 @@ class TrialSpec:
     go_cue_step: int = 0
     #: Hand displacement before the go cue counted as an early movement (cm).
     early_movement_cm: float = 0.5
+    #: Centre-out: the number of fixed target directions (0: the task's targets).
+    directions: int = 0
+    #: Centre-out: the targets' distance from the hand's start (cm).
+    distance_cm: float = 3.0
+    #: Centre-out: the angle of direction 0 (deg, counter-clockwise from +x).
+    first_direction_deg: float = 90.0
+    #: The start posture (shoulder, elbow; deg); None: the task's (``task_spec.START_ANGLES``).
+    start_angles: tuple[float, float] | None = None
     #: The environment's episode at which the first block starts: 0 in a task file (no key), a run's babbling
     #: episodes in its environments (:meth:`shifted`).
     start_episode: int = 0
@@ -173,13 +196,30 @@ class TrialSpec:
         block = self.blocks[i]
         e = episode - self.start_episode
         u_channel, u_catch = np.random.default_rng([int(key), int(e < 0), abs(e)]).random(2)
+        k = self.direction_at(key, episode)
         if block.channel or u_channel < block.channel_probability:
-            return Trial(i, block.name, "channel", 0.0)
+            return Trial(i, block.name, "channel", 0.0, k)
         if block.field_b == 0.0:
-            return Trial(i, block.name, "null", 0.0)
+            return Trial(i, block.name, "null", 0.0, k)
         if u_catch < block.catch_probability:
-            return Trial(i, block.name, "catch", 0.0)
-        return Trial(i, block.name, "field", block.field_b)
+            return Trial(i, block.name, "catch", 0.0, k)
+        return Trial(i, block.name, "field", block.field_b, k)
+
+    def direction_at(self, key: int, episode: int) -> int:
+        """Environment episode ``episode``'s centre-out direction index (-1 without centre-out targets): each
+        direction once per cycle of :attr:`directions` trials, in an order drawn from ``(key, cycle)``."""
+        n = self.directions
+        if n <= 0:
+            return -1
+        e = episode - self.start_episode
+        cycle = e // n  # floor: the babbling episodes (e < 0) have cycles of their own
+        order = np.random.default_rng([int(key), 2 + int(cycle < 0), abs(cycle)]).permutation(n)
+        return int(order[e % n])
+
+    def centre_out_target(self, direction: int, start: Any) -> np.ndarray:
+        """The target of direction ``direction`` for the hand starting at ``start`` (cm)."""
+        theta = math.radians(self.first_direction_deg + 360.0 * direction / self.directions)
+        return np.array([start[0] + self.distance_cm * math.cos(theta), start[1] + self.distance_cm * math.sin(theta)])
 
     @property
     def forces(self) -> bool:
@@ -207,6 +247,12 @@ def _probability(value: Any, where: str) -> float:
     if not 0.0 <= p <= 1.0:
         raise TaskSpecError(f"{where} must be a probability in [0, 1], got {value!r}")
     return p
+
+
+def _angles(value: Any, where: str) -> tuple[float, float]:
+    if not isinstance(value, (list, tuple)) or len(value) != 2:
+        raise TaskSpecError(f"{where} must be [shoulder, elbow] in degrees, got {value!r}")
+    return finite_number(value[0], f"{where}[0]"), finite_number(value[1], f"{where}[1]")
 
 
 def _parse_block(table: Any, k: int, defaults: dict[str, float], where: str) -> Block:
@@ -248,8 +294,14 @@ def parse_trials(table: Any, source: str) -> TrialSpec:
     for key in ("channel_stiffness", "channel_damping", "early_movement_cm"):
         if key in table:
             kwargs[key] = finite_number(table[key], f"{where}.{key}")
-    if "go_cue_step" in table:
-        kwargs["go_cue_step"] = _integer(table["go_cue_step"], f"{where}.go_cue_step")
+    for key in ("distance_cm", "first_direction_deg"):
+        if key in table:
+            kwargs[key] = finite_number(table[key], f"{where}.{key}")
+    for key in ("go_cue_step", "directions"):
+        if key in table:
+            kwargs[key] = _integer(table[key], f"{where}.{key}")
+    if "start_angles" in table:
+        kwargs["start_angles"] = _angles(table["start_angles"], f"{where}.start_angles")
     spec = TrialSpec(blocks=tuple(_parse_block(b, k, defaults, where) for k, b in enumerate(blocks)), **kwargs)
     try:
         check_trials(spec)
@@ -269,6 +321,10 @@ def check_trials(spec: TrialSpec) -> None:
         raise TaskSpecError(f"trials.go_cue_step must be an integer >= 0 (0: no go cue), got {spec.go_cue_step}")
     if not (math.isfinite(spec.early_movement_cm) and spec.early_movement_cm > 0):
         raise TaskSpecError(f"trials.early_movement_cm must be a positive number (cm), got {spec.early_movement_cm!r}")
+    if spec.directions < 0:
+        raise TaskSpecError(f"trials.directions must be an integer >= 0 (0: the task's targets), got {spec.directions}")
+    if not (math.isfinite(spec.distance_cm) and spec.distance_cm > 0):
+        raise TaskSpecError(f"trials.distance_cm must be a positive number (cm), got {spec.distance_cm!r}")
 
 
 def check_task_trials(task: str, spec: TrialSpec, plant: PlantSpec, steps_per_episode: int, vision: str) -> None:
@@ -295,6 +351,46 @@ def check_task_trials(task: str, spec: TrialSpec, plant: PlantSpec, steps_per_ep
     if spec.go_cue_step > 0 and vision not in ("perfect", "noisy"):
         raise TaskSpecError(f"{where}.go_cue_step: the go cue shows the target at step {spec.go_cue_step}, which "
                             f"vision {vision!r} may not see; use vision 'perfect' or 'noisy'")
+
+
+def reaching_angles(target: Any, lengths: tuple[float, float], origin: Any) -> list[tuple[float, float]]:
+    """The (shoulder, elbow) angle pairs (deg, in [-180, 180)) that put the hand at ``target`` (cm): both elbow
+    solutions of the two-link arm (Algorithm 1 inverted), none where the target is out of reach."""
+    (l1, l2), dx, dy = lengths, target[0] - origin[0], target[1] - origin[1]
+    c = (dx * dx + dy * dy - l1 * l1 - l2 * l2) / (2.0 * l1 * l2)
+    if abs(c) > 1.0:
+        return []
+    pairs = []
+    for beta in {math.acos(c), -math.acos(c)}:
+        alpha = math.atan2(dy, dx) - math.atan2(l2 * math.sin(beta), l1 + l2 * math.cos(beta))
+        pairs.append(tuple((math.degrees(a) + 180.0) % 360.0 - 180.0 for a in (alpha, beta)))
+    return pairs
+
+
+def check_centre_out(task: Any) -> None:
+    """A ``[trials]`` table's centre-out targets against its task (a ``TaskSpec``): its own targets (cues, a
+    static target) would conflict, the arm's lengths must not change, and every target must lie on the plane and be
+    reachable within the joint range from the start posture."""
+    from apac_mj.kinematics import motion_function
+
+    spec, where = task.trials, f"task {task.name!r}: trials.directions"
+    if spec is None or not spec.directions:
+        return
+    if task.cues is not None or task.target_mode != "changing" or task.kinematics_mode != "static":
+        raise TaskSpecError(f"{where}: centre-out targets need a task of changing targets without cues and with "
+                            f"static kinematics (got target_mode {task.target_mode!r}, kinematics_mode "
+                            f"{task.kinematics_mode!r}, cues {'set' if task.cues is not None else 'none'})")
+    start, _ = motion_function(*task.start_angles(), *task.link_lengths, task.origin)
+    lo, hi = task.joint_range
+    for k in range(spec.directions):
+        t = spec.centre_out_target(k, start)
+        on_plane = 0.0 <= t[0] <= task.plane_size[0] and 0.0 <= t[1] <= task.plane_size[1]
+        if not on_plane or not any(lo <= a <= hi and lo <= b <= hi
+                                   for a, b in reaching_angles(t, task.link_lengths, task.origin)):
+            raise TaskSpecError(f"{where}: direction {k}'s target ({t[0]:.2f}, {t[1]:.2f}) cm, {spec.distance_cm} cm "
+                                f"from the hand's start ({start[0]:.2f}, {start[1]:.2f}), is off the plane or out of "
+                                f"reach within the joint range {task.joint_range}: shorten trials.distance_cm or move "
+                                "trials.start_angles")
 
 
 # -- one episode's trial: forces and measures -----------------------------------------------------------------------
@@ -338,6 +434,12 @@ class TrialRunner:
         self.episode = int(episode)
         self.trial = self.spec.trial_at(self.key, self.episode)
         return self.trial
+
+    def centre_out_target(self, start: Any) -> np.ndarray:
+        """The episode's centre-out target for the hand starting at ``start`` (cm; :meth:`new_episode` first)."""
+        if self.trial is None or self.trial.direction < 0:
+            raise RuntimeError("no centre-out trial: the [trials] table has no directions, or no episode began")
+        return self.spec.centre_out_target(self.trial.direction, start)
 
     @property
     def field_b(self) -> float:
@@ -403,12 +505,15 @@ class TrialRunner:
         """The episode's :data:`TRIAL_COLUMNS`."""
         trial = self.trial
         channel = trial is not None and trial.channel
-        return {"trial_block": "" if trial is None else trial.name, "trial_type": "" if trial is None else trial.type,
-                "trial_field_b": self.field_b, "lateral_error": float(self.lateral),
-                "channel_force_peak": float(self.force_peak) if channel else math.nan,
-                "channel_force_at_peak_speed": float(self.force_at_peak_speed) if channel else math.nan,
-                "peak_speed": float(self.peak_speed),
-                "early_movement": bool(self.hold_displacement > self.spec.early_movement_cm)}
+        row = {"trial_block": "" if trial is None else trial.name, "trial_type": "" if trial is None else trial.type,
+               "trial_field_b": self.field_b, "lateral_error": float(self.lateral),
+               "channel_force_peak": float(self.force_peak) if channel else math.nan,
+               "channel_force_at_peak_speed": float(self.force_at_peak_speed) if channel else math.nan,
+               "peak_speed": float(self.peak_speed),
+               "early_movement": bool(self.hold_displacement > self.spec.early_movement_cm)}
+        if self.spec.directions:  # centre-out only: every other task's metrics stay as they were
+            row["trial_direction"] = -1 if trial is None else int(trial.direction)
+        return row
 
     def view(self) -> dict[str, Any]:
         """What a recording shows: the trial's type, block and field, the hand's start, the channel (its line's two
