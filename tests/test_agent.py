@@ -364,7 +364,8 @@ def test_a_lesion_freezes_exactly_its_learners_for_lesioned_members(frozen):
     still = tuple(n for name in frozen for n in {"habit": habit, "model": model}[name])
     moving = tuple(n for n in habit + model if n not in still)
     seeds, data = [3, 4], transitions(2, 5, seed=1)
-    lesioned, whole = Agent(small_cfg(frozen=frozen), seeds), Agent(small_cfg(), seeds)
+    extra = dict(inverse_updates=1)  # the inverse model's own Adam steps (Agent._model_step) as well
+    lesioned, whole = Agent(small_cfg(frozen=frozen, **extra), seeds), Agent(small_cfg(**extra), seeds)
     for s, a, r, s2, d in data[:2]:  # both learn alike before the lesion
         for agent in (lesioned, whole):
             agent.replay.add(s, a, r, s2, d, [True, True])

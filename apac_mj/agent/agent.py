@@ -98,6 +98,8 @@ class Agent:
                             ((self.actor, self.target_actor), (self.critic, self.target_critic))
                             for t, o in zip(tnet.parameters(), net.parameters())]
         self._soft_views = [(t.unbind(0), o.unbind(0)) for t, o in self._soft_pairs]
+        #: Per member: its ``cfg.frozen`` learners learn nothing in this update (a lesion; :meth:`update` sets it).
+        self._lesioned = [False] * self.E
 
     def _build_networks(self, init: list[torch.Generator], dynamics: MPCParams | None) -> dict[str, float]:
         """The networks, initialized from the members' ``init`` generators in a fixed order (the dynamics model
@@ -243,7 +245,7 @@ class Agent:
             return {name: nan.clone() for name in self.loss_names}
         losses = self.gradients(self.replay.sample(self.cfg.batch_size, members), members)
         self.optimizer.step()
-        self._soft_update(self._learning("actor", members))
+        self._soft_update(self._learning("actor", members))  # the habit's targets: frozen with the actor
         for _ in range(self.model_updates):
             self._model_step(self.replay.sample(self.cfg.batch_size, members), members)
         for _ in range(self.cfg.inverse_updates):
@@ -265,9 +267,9 @@ class Agent:
 
     def _learning(self, net: str, members: Sequence[int]) -> list[int]:
         """``members`` whose network ``net`` learns this update (not frozen by a lesion)."""
-        frozen = any(net in FREEZABLE[name] for name in self.cfg.frozen)
-        lesioned = getattr(self, "_lesioned", None) or [False] * self.E
-        return [k for k in members if not (frozen and lesioned[k])]
+        if not any(net in FREEZABLE[name] for name in self.cfg.frozen):
+            return list(members)
+        return [k for k in members if not self._lesioned[k]]
 
     def _model_step(self, batch: dict[str, torch.Tensor], members: Sequence[int],
                     net: str = "dynamics_model") -> None:

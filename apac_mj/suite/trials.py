@@ -291,10 +291,7 @@ def parse_trials(table: Any, source: str) -> TrialSpec:
     defaults = {key: _probability(table.get(key, 0.0), f"{where}.{key}")
                 for key in ("channel_probability", "catch_probability")}
     kwargs: dict[str, Any] = {}
-    for key in ("channel_stiffness", "channel_damping", "early_movement_cm"):
-        if key in table:
-            kwargs[key] = finite_number(table[key], f"{where}.{key}")
-    for key in ("distance_cm", "first_direction_deg"):
+    for key in ("channel_stiffness", "channel_damping", "early_movement_cm", "distance_cm", "first_direction_deg"):
         if key in table:
             kwargs[key] = finite_number(table[key], f"{where}.{key}")
     for key in ("go_cue_step", "directions"):
