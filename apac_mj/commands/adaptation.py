@@ -8,7 +8,9 @@ from apac_mj.commands import action_parser, study_arguments
 
 PROTOCOL = """\
 The protocol (docs/results/adaptation/): each agent kind (ddpg: habit only; spac: internal model only; apac:
-both, arbitrated) learns to reach with the compliant arm in a null field, then, learning on, runs the blocks of
+both, arbitrated), and APAC twice more with its habit or its internal model frozen from the adaptation block
+on (the lesions: which learner carries what), learns centre-out reaches (8 directions, each trial measured
+against its own direction's baseline) with the compliant arm in a null field, then, learning on, runs the blocks of
 the task's [trials] table (tasks/changing_target_compliant_adaptation.toml): baseline -> curl-field adaptation ->
 brief reverse field (de-adaptation) -> channel trials (Smith et al. 2006's spontaneous recovery) -> re-exposure
 (savings), with channel trials (error clamps: the learned lateral force) and catch trials (the field off: the
@@ -24,12 +26,14 @@ written). One process writes a study at a time (STUDY/.lock).
 
 examples:
   apac-mj adaptation run --out results/adaptation/study
-  apac-mj adaptation run --out results/adaptation/small --set seeds=0-2 --set agents=ddpg,apac"""
+  apac-mj adaptation run --out results/adaptation/small --set seeds=0-2 --set agents=ddpg,apac
+  apac-mj adaptation run --out results/adaptation/part2 --set seeds=10-19 --set lesions=habit"""
 
 REPORT_EPILOG = """\
 Reads STUDY/runs/<kind>/metrics.parquet (and MotorNet's trials.csv from bench/motornet_adaptation.py with
---motornet); writes trials.csv, signatures.csv, summary.csv, two_state.csv, two_state_summary.csv, learning.png,
-channel.png, after_effects.png and report.md. Per seed: the after-effect (catch-trial lateral error minus the
+--motornet); writes trials.csv, signatures.csv, summary.csv, lesion_effects.csv (intact APAC minus each
+lesioned run, paired by seed: what that learner's learning adds), carriers.csv, two_state.csv,
+two_state_summary.csv, learning.png, channel.png, after_effects.png and report.md. Per seed: the after-effect (catch-trial lateral error minus the
 baseline's; people: opposite the field), the adaptation on late adaptation-block channel trials, the spontaneous
 recovery (channel-block adaptation after its first 3 trials minus in them) and the savings (lateral error on the
 first 10 field trials of adaptation minus of re-exposure); the two-state model (Smith et al. 2006) fitted to each
@@ -37,7 +41,8 @@ seed's channel trials; intervals over seeds (apac_mj.report.stats.seed_interval)
 
 examples:
   apac-mj adaptation report results/adaptation/study
-  apac-mj adaptation report results/adaptation/study --motornet results/adaptation/motornet/trials.csv"""
+  apac-mj adaptation report results/adaptation/study --motornet results/adaptation/motornet/trials.csv
+  apac-mj adaptation report results/adaptation/study results/adaptation/part2   # seeds 0-9 and 10-19 as one"""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
